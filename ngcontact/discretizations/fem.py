@@ -1,0 +1,221 @@
+"""Conforming finite elements P_p, p = 1..4 ([CAMWA21], seed "The finite element method").
+
+Unknowns are the values at the interior Lagrange nodes x_l:
+u_ah = sum_l (X_a)_l psi_l (+ Dirichlet lifting by nodal interpolation of g_a).
+The multiplier is lam_h = sum_l (X3)_l Theta_l with
+
+* p = 1: Theta_l = psi_l and the lumped product <w, v>_h = sum_a w(a) v(a) (psi_a, 1),
+  so D = diag((psi_a, 1)) (Ben Belgacem, Bernardi, Blouza, Vohralik 2012);
+* p >= 2: Theta_l the basis dual to the Lagrange basis, (Theta_l, psi_m) = delta_lm,
+  so D = I and X3 >= 0  <=>  (lam_h, psi_l) >= 0 (Lambda_h^p of the seed).
+
+The algebraic problem is (DS2): E X = F, X1 - X2 >= 0, X3 >= 0, (X1 - X2).X3 = 0,
+E = [[mu1 S, 0, -D], [0, mu2 S, D]], S the Lagrange-basis stiffness matrix,
+obtained from NGSolve's hierarchical H1 matrices by the exact change of
+basis of :mod:`ngcontact.lagrange`.  The obstacle problem is the same with one
+field and g = X - psi.
+"""
+from __future__ import annotations
+
+import time
+from typing import Optional
+
+import numpy as np
+import scipy.sparse as sp
+from ngsolve import (BilinearForm, GridFunction, H1, Integrate, InnerProduct, LinearForm, TaskManager,
+                     dx, grad)
+
+from ..complementarity import ComplementaritySystem
+from ..lagrange import LagrangeNodes
+from ..problems import ProblemDataError, check_data_on_points, data_fields
+
+__all__ = ["FEMDiscretization"]
+
+
+def _csr(bf_or_mat) -> sp.csr_matrix:
+    mat = getattr(bf_or_mat, "mat", bf_or_mat)
+    data, indices, indptr = mat.CSR()  # views: copy before the form goes away
+    return sp.csr_matrix((np.array(data), np.array(indices), np.array(indptr)), shape=(mat.height, mat.width))
+
+
+class FEMDiscretization:
+    """Conforming P_p discretization of a two-membrane or obstacle problem on one mesh.
+
+    Parameters
+    ----------
+    problem : TwoMembraneProblem or ObstacleProblem
+    mesh : ngsolve.Mesh
+    order : int, 1..4
+    solver : str
+        sparse SPD solver of the Newton steps ('sparsecholesky' or 'scipy').
+    quad_bonus : int
+        extra quadrature order for data (loads, errors).
+    """
+
+    name = "fem"
+
+    def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6):
+        if order not in (1, 2, 3, 4):
+            raise ValueError(f"order must be 1, 2, 3 or 4 for fem, got {order!r}")
+        t0 = time.perf_counter()
+        self.problem, self.mesh, self.order, self.quad_bonus = problem, mesh, order, quad_bonus
+        if getattr(problem.domain, "curved", False) and order > 1:
+            mesh.Curve(order)
+        self.fes = fes = H1(mesh, order=order, dirichlet=".*")
+        self.nodes = nodes = LagrangeNodes.build(fes)
+        free = np.array(list(fes.FreeDofs()), dtype=bool)
+        self.interior = np.flatnonzero(free)
+        self.boundary = np.flatnonzero(~free)
+        ni = len(self.interior)
+
+        # data at the nodes, checked once
+        data = {name: nodes.evaluate(cf) for name, cf in data_fields(problem).items()}
+        check_data_on_points(problem, data, ~free, nodes.coords)
+
+        u, v = fes.TnT()
+        with TaskManager():
+            S = BilinearForm(grad(u) * grad(v) * dx).Assemble()
+            ones = LinearForm(v * dx).Assemble()
+        self.S = nodes.transform(_csr(S))
+        Sii = self.S[self.interior][:, self.interior]
+        Sib = self.S[self.interior][:, self.boundary]
+        # D: lumped weights (psi_a, 1) for p = 1, identity (dual basis) for p >= 2
+        self.D = (nodes.T.T @ ones.vec.FV().NumPy())[self.interior] if order == 1 else np.ones(ni)
+
+        if problem.kind == "membranes":
+            loads, dirichlet = (problem.f1, problem.f2), ("g1", "g2")
+        else:
+            loads, dirichlet = (problem.f,), ("g",)
+        self.lift = []  # nodal Dirichlet values of each field (zero inside)
+        F = []
+        for mu, f, gname in zip(problem.mus, loads, dirichlet):
+            lf = LinearForm(f * v * dx(bonus_intorder=quad_bonus))
+            with TaskManager():
+                lf.Assemble()
+            Fn = nodes.T.T @ lf.vec.FV().NumPy()
+            gb = np.zeros(fes.ndof)
+            gb[self.boundary] = data[gname][self.boundary]
+            self.lift.append(gb)
+            F.append(Fn[self.interior] - mu * (Sib @ gb[self.boundary]))
+        self.nfields = len(F)
+        K = sp.block_diag([mu * Sii for mu in problem.mus], format="csr")
+        if problem.kind == "membranes":
+            up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
+        else:
+            up, lo, b = np.arange(ni), -np.ones(ni, dtype=np.int64), data["psi"][self.interior]
+        self.system = ComplementaritySystem(K, np.concatenate(F), up, lo, b, self.D, solver=solver)
+        self.time_assembly = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_interior(self) -> int:
+        return len(self.interior)
+
+    @property
+    def ndof(self) -> int:
+        """DOFs as counted in [CAMWA21]: (fields + multiplier) x interior Lagrange nodes."""
+        return (self.nfields + 1) * self.n_interior
+
+    # --------------------------------------------------------- initial guesses
+    def initial_guess(self, fields=None):
+        """(x0, y0) from CoefficientFunctions per field (None: zero), y0 = 0."""
+        ni = self.n_interior
+        x0 = np.zeros(self.nfields * ni)
+        for a, cf in enumerate(fields or ()):
+            if cf is not None:
+                x0[a * ni:(a + 1) * ni] = self.nodes.evaluate(cf)[self.interior]
+        return x0, np.zeros(ni)
+
+    def prolongate(self, previous: "FEMDiscretization", x, y):
+        """Nested iteration: interpolate a coarser level's solution at this level's nodes."""
+        ni = self.n_interior
+        pts = self.nodes.coords[self.interior]
+        gfs = previous.gridfunctions(x, y)
+        names = ["u1", "u2"][: self.nfields] if self.nfields == 2 else ["u"]
+        x0 = np.concatenate([_evaluate_at(previous.mesh, gfs[n], pts) for n in names])
+        lam = _evaluate_at(previous.mesh, gfs["lam"], pts)
+        if self.order == 1:
+            y0 = lam
+        else:  # y_l = (lam_h, psi_l) for the interpolated lam_h
+            full = np.zeros(self.fes.ndof)
+            full[self.interior] = lam
+            y0 = self.mass_nodal() @ full
+            y0 = y0[self.interior]
+        return x0, y0
+
+    # ------------------------------------------------------------ postprocess
+    def mass_nodal(self) -> sp.csr_matrix:
+        if not hasattr(self, "_mass"):
+            u, v = self.fes.TnT()
+            M = BilinearForm(u * v * dx).Assemble()
+            self._mass = self.nodes.transform(_csr(M))
+        return self._mass
+
+    def nodal_fields(self, x, y) -> dict:
+        """Nodal values (all nodes, boundary included) of u_a and lam_h."""
+        ni = self.n_interior
+        out = {}
+        names = ["u1", "u2"] if self.nfields == 2 else ["u"]
+        for a, name in enumerate(names):
+            X = self.lift[a].copy()
+            X[self.interior] = x[a * ni:(a + 1) * ni]
+            out[name] = X
+        rhs = np.zeros(self.fes.ndof)
+        rhs[self.interior] = y
+        if self.order == 1:
+            out["lam"] = rhs  # lam_h(a) = X3_a, zero on the boundary
+        else:  # lam_h = sum_l X3_l Theta_l:  M Lambda = [X3; 0]
+            import scipy.sparse.linalg as spla
+
+            out["lam"] = spla.spsolve(self.mass_nodal().tocsc(), rhs)
+        return out
+
+    def gridfunctions(self, x, y) -> dict:
+        """GridFunctions u1, u2 (or u), lam and the gap u1 - u2 (or u - psi)."""
+        out = {}
+        for name, X in self.nodal_fields(x, y).items():
+            gf = GridFunction(self.fes, name=name)
+            gf.vec.FV().NumPy()[:] = self.nodes.T @ X
+            out[name] = gf
+        if self.nfields == 2:
+            out["gap"] = out["u1"] - out["u2"]
+        else:
+            out["gap"] = out["u"] - self.problem.psi
+        return out
+
+    def errors(self, x, y) -> dict:
+        """Energy error (sum_a mu_a ||grad(u_a - u_ah)||^2)^(1/2) and max nodal error."""
+        ex = self.problem.exact
+        if ex is None:
+            return {}
+        gfs = self.gridfunctions(x, y)
+        nodal = self.nodal_fields(x, y)
+        names = ["u1", "u2"] if self.nfields == 2 else ["u"]
+        e2, emax = 0.0, 0.0
+        order = 2 * self.order + self.quad_bonus
+        for a, (name, mu) in enumerate(zip(names, self.problem.mus)):
+            d = ex.gradient(a + 1) - grad(gfs[name])
+            e2 += mu * Integrate(InnerProduct(d, d), self.mesh, order=order)
+            exact_nodal = self.nodes.evaluate(ex.u1 if a == 0 else ex.u2)
+            emax = max(emax, float(np.max(np.abs(exact_nodal - nodal[name]))))
+        return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
+
+    def complementarity(self, x, y) -> dict:
+        """Discrete complementarity at the nodes: min gap, min X3, max |gap * X3|."""
+        g = self.system.gap(x)
+        return {"gap_min": float(g.min(initial=0.0)), "lam_min": float(y.min(initial=0.0)),
+                "product_max": float(np.max(np.abs(g * y), initial=0.0))}
+
+
+def _evaluate_at(mesh, cf, pts) -> np.ndarray:
+    """Values of cf at points; points outside the (curved) mesh get the value 0."""
+    try:
+        return np.asarray(cf(mesh(pts[:, 0], pts[:, 1]))).reshape(-1)
+    except Exception:  # some point outside: fall back to one point at a time
+        vals = np.zeros(len(pts))
+        for i, (px, py) in enumerate(pts):
+            try:
+                vals[i] = cf(mesh(px, py))
+            except Exception:
+                vals[i] = 0.0
+        return vals

@@ -1,0 +1,430 @@
+"""Computational domains and their hierarchies of nested triangular meshes.
+
+A domain knows nothing about finite element spaces: it produces the meshes
+T_0, T_1, ... where T_j is obtained from the coarse mesh T_0 by j uniform
+("red") refinements, every triangle being split into four by its edge
+midpoints; on curved boundaries the new points are placed on the curve.
+Every boundary segment carries a name, so ``dirichlet=".*"`` selects the
+whole boundary.
+
+Structured squares are built level by level with numpy and netgen's
+vectorized ``AddPoints`` / ``AddElements``; domains given by a netgen
+geometry (or a ``.vol`` file) are refined by ``netgen.meshing.Mesh.Refine``,
+which splits every triangle 1 -> 4 and projects new boundary points onto the
+geometry.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import netgen.meshing as ngm
+import numpy as np
+import ngsolve
+from netgen.geom2d import SplineGeometry
+
+__all__ = ["Domain", "CrissCrossSquare", "StructuredSquare", "GeometryDomain",
+           "UnitDisk", "LShape", "MeshFileDomain", "mesh_size"]
+
+_SIDES = ("bottom", "right", "top", "left")
+
+
+def mesh_size(mesh) -> float:
+    """Largest edge length (element diameter) of a triangular mesh.
+
+    Parameters
+    ----------
+    mesh : ngsolve.Mesh or netgen.meshing.Mesh
+        A 2D triangular mesh; curved elements are measured by their straight
+        edges.
+
+    Returns
+    -------
+    float
+        ``max_K diam(K)``.
+    """
+    ngmesh = getattr(mesh, "ngmesh", mesh)
+    P = ngmesh.Coordinates()[ngmesh.Elements2D().NumPy()["nodes"][:, :3] - 1]
+    return float(np.sqrt(((P - np.roll(P, 1, axis=1)) ** 2).sum(axis=-1)).max())
+
+
+def _fail(obj, field: str, value: Any, what: str):
+    raise ValueError(f"{type(obj).__name__}.{field} must be {what}, got {value!r}")
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def _is_real(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_positive(obj, *fields: str):
+    for f in fields:
+        v = getattr(obj, f)
+        if not (_is_real(v) and v > 0):
+            _fail(obj, f, v, "a positive finite number")
+
+
+def _check_box(obj):
+    for lo, hi in (("xmin", "xmax"), ("ymin", "ymax")):
+        a, b = getattr(obj, lo), getattr(obj, hi)
+        if not _is_real(a):
+            _fail(obj, lo, a, "a finite number")
+        if not (_is_real(b) and b > a):
+            _fail(obj, hi, b, f"a finite number > {lo} = {a!r}")
+
+
+def _check_level(level, name: str = "level") -> int:
+    if not (_is_int(level) and level >= 0):
+        raise ValueError(f"{name} must be a non-negative integer, got {level!r}")
+    return int(level)
+
+
+class Domain:
+    """Base class: a domain and its sequence of nested meshes T_0, T_1, ...
+
+    Subclasses implement ``name`` and ``_ngmeshes(start, stop)``, a generator
+    of independent netgen meshes for the levels ``start, ..., stop - 1``.
+    """
+
+    curved: bool = False  #: True if the boundary is curved (call ``mesh.Curve(p)``)
+
+    @property
+    def name(self) -> str:
+        """Short human-readable description."""
+        raise NotImplementedError
+
+    def _ngmeshes(self, start: int, stop: int) -> Iterator[ngm.Mesh]:
+        raise NotImplementedError
+
+    def mesh(self, level: int = 0) -> ngsolve.Mesh:
+        """A fresh mesh T_level (``level`` uniform refinements of T_0)."""
+        level = _check_level(level)
+        return ngsolve.Mesh(next(self._ngmeshes(level, level + 1)))
+
+    def meshes(self, levels: int) -> Iterator[ngsolve.Mesh]:
+        """Yield T_0, ..., T_{levels-1}, refining incrementally.
+
+        The yielded meshes are independent objects: refining or curving one
+        does not affect the others.
+        """
+        for ngmesh in self._ngmeshes(0, _check_level(levels, "levels")):
+            yield ngsolve.Mesh(ngmesh)
+
+    def h(self, level: int = 0) -> float:
+        """Mesh size of T_level (largest edge length unless stated otherwise)."""
+        return mesh_size(self.mesh(level))
+
+
+# --------------------------------------------------------------------------
+# Structured squares: numpy arrays (X, T, S, tag) -> netgen mesh
+# --------------------------------------------------------------------------
+
+def _red_refine(X, T, S, tag):
+    """One red refinement of vertex/triangle/segment arrays (straight boundary).
+
+    Old vertices keep their numbers, new ones (edge midpoints) follow; the
+    children of triangle k are triangles 4k, ..., 4k+3, all oriented like
+    their parent, the last one being the middle triangle.
+    """
+    nv = len(X)
+    E = np.sort(T[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+    keys, inv = np.unique(E[:, 0] * nv + E[:, 1], return_inverse=True)
+    X = np.vstack([X, 0.5 * (X[keys // nv] + X[keys % nv])])
+    a, b, c = T.T
+    ab, bc, ca = (nv + inv.reshape(-1, 3)).T
+    T = np.stack([a, ab, ca, ab, b, bc, ca, bc, c, ab, bc, ca], axis=1).reshape(-1, 3)
+    s = np.sort(S, axis=1).astype(np.int64)
+    m = nv + np.searchsorted(keys, s[:, 0] * nv + s[:, 1])
+    S = np.stack([S[:, 0], m, m, S[:, 1]], axis=1).reshape(-1, 2)
+    return X, T, S, np.repeat(tag, 2)
+
+
+def _grid(n: int, box):
+    """Vertices of the (n+1) x (n+1) grid (index i + (n+1) j) and its boundary."""
+    xmin, xmax, ymin, ymax = box
+    gx, gy = np.meshgrid(np.linspace(xmin, xmax, n + 1), np.linspace(ymin, ymax, n + 1))
+    X = np.column_stack([gx.ravel(), gy.ravel()])
+    k, m = np.arange(n), n + 1
+    # counterclockwise segments (domain on the left): bottom, right, top, left
+    S = np.concatenate([np.c_[k, k + 1], np.c_[k * m + n, (k + 1) * m + n],
+                        np.c_[n * m + k + 1, n * m + k], np.c_[(k + 1) * m, k * m]])
+    return X, S, np.repeat(np.arange(4), n)
+
+
+def _to_ngmesh(X, T, S, tag) -> ngm.Mesh:
+    """Netgen 2D mesh with region "domain" and boundary regions bottom/right/top/left."""
+    mesh = ngm.Mesh(dim=2)
+    mesh.AddPoints(np.ascontiguousarray(X, dtype=np.float64))
+    dom = mesh.AddRegion("domain", dim=2)
+    mesh.AddElements(dim=2, index=dom, data=np.ascontiguousarray(T, dtype=np.int32), base=0)
+    for k, side in enumerate(_SIDES):
+        idx = mesh.AddRegion(side, dim=1)
+        mesh.AddElements(dim=1, index=idx, data=np.ascontiguousarray(S[tag == k], dtype=np.int32),
+                         base=0)
+    return mesh
+
+
+class _BoxDomain(Domain):
+    """Rectangle [xmin, xmax] x [ymin, ymax] built from numpy arrays."""
+
+    @property
+    def _box(self):
+        return (float(self.xmin), float(self.xmax), float(self.ymin), float(self.ymax))
+
+    def _post_init(self):
+        if not (_is_int(self.n0) and self.n0 > 0):
+            _fail(self, "n0", self.n0, "a positive integer")
+        _check_box(self)
+
+    def _arrays(self, level: int):
+        raise NotImplementedError
+
+    def _next(self, arrays, level: int):
+        """Arrays of ``level`` given those of ``level - 1``."""
+        return self._arrays(level)
+
+    def _ngmeshes(self, start, stop):
+        arrays = self._arrays(start)
+        for level in range(start, stop):
+            if level > start:
+                arrays = self._next(arrays, level)
+            yield _to_ngmesh(*arrays)
+
+    def h(self, level: int = 0) -> float:
+        """Nominal mesh size: side of the squares of T_level (longest side if a rectangle)."""
+        level = _check_level(level)
+        return max(self.xmax - self.xmin, self.ymax - self.ymin) / (self.n0 * 2 ** level)
+
+
+@dataclass(frozen=True)
+class CrissCrossSquare(_BoxDomain):
+    """Criss-cross meshes of a rectangle, [CAMWA21] criss-cross meshes T0..Tj.
+
+    T_0 consists of ``n0 x n0`` squares, each cut into four triangles by both
+    diagonals; T_j is obtained by j red refinements (4^j * 4 n0^2 triangles;
+    for ``n0 = 4`` on the unit square T_0 has 64 triangles, 41 vertices,
+    104 edges and h_0 = 0.25, and T_4 has 16384 triangles).
+
+    Parameters
+    ----------
+    n0 : int
+        Number of squares per side of T_0.
+    xmin, xmax, ymin, ymax : float
+        The rectangle. Boundary names are ``bottom``, ``right``, ``top``,
+        ``left``.
+    """
+
+    n0: int = 4
+    xmin: float = 0.0
+    xmax: float = 1.0
+    ymin: float = 0.0
+    ymax: float = 1.0
+
+    def __post_init__(self):
+        self._post_init()
+
+    @property
+    def name(self) -> str:
+        return f"criss-cross {self.n0}x{self.n0} on [{self.xmin:g},{self.xmax:g}]x[{self.ymin:g},{self.ymax:g}]"
+
+    def _arrays(self, level):
+        n, box = self.n0, self._box
+        X, S, tag = _grid(n, box)
+        hx, hy = (box[1] - box[0]) / n, (box[3] - box[2]) / n
+        centers = X.reshape(n + 1, n + 1, 2)[:-1, :-1].reshape(-1, 2) + [hx / 2, hy / 2]
+        i, j = np.meshgrid(np.arange(n), np.arange(n))
+        a = (i + (n + 1) * j).ravel()
+        b, c, d, m = a + 1, a + n + 2, a + n + 1, (n + 1) ** 2 + np.arange(n * n)
+        T = np.stack([a, b, m, b, c, m, c, d, m, d, a, m], axis=1).reshape(-1, 3)
+        arrays = (np.vstack([X, centers]), T, S, tag)
+        for _ in range(level):
+            arrays = _red_refine(*arrays)
+        return arrays
+
+    def _next(self, arrays, level):
+        return _red_refine(*arrays)
+
+
+@dataclass(frozen=True)
+class StructuredSquare(_BoxDomain):
+    """Rectangle cut into ``N x N`` cells, each split by the diagonal (x_i, y_j)-(x_{i+1}, y_{j+1}).
+
+    Level j has ``N = n0 * 2**j`` (the meshes are nested: red refinement of
+    this pattern reproduces it), like PETSc DMDA P1 meshes.
+
+    Parameters
+    ----------
+    n0 : int
+        Cells per side of T_0.
+    xmin, xmax, ymin, ymax : float
+        The rectangle; boundary names ``bottom``, ``right``, ``top``, ``left``.
+    """
+
+    n0: int = 16
+    xmin: float = 0.0
+    xmax: float = 1.0
+    ymin: float = 0.0
+    ymax: float = 1.0
+
+    def __post_init__(self):
+        self._post_init()
+
+    @property
+    def name(self) -> str:
+        return f"structured {self.n0}x{self.n0} on [{self.xmin:g},{self.xmax:g}]x[{self.ymin:g},{self.ymax:g}]"
+
+    def _arrays(self, level):
+        n = self.n0 * 2 ** level
+        X, S, tag = _grid(n, self._box)
+        i, j = np.meshgrid(np.arange(n), np.arange(n))
+        a = (i + (n + 1) * j).ravel()
+        T = np.stack([a, a + 1, a + n + 2, a, a + n + 2, a + n + 1], axis=1).reshape(-1, 3)
+        return X, T, S, tag
+
+
+# --------------------------------------------------------------------------
+# Netgen geometries and mesh files: refined by netgen
+# --------------------------------------------------------------------------
+
+class _NetgenDomain(Domain):
+    """Levels by ``netgen.meshing.Mesh.Refine`` (1 -> 4, boundary points on the geometry)."""
+
+    def _coarse(self) -> ngm.Mesh:
+        raise NotImplementedError
+
+    def _ngmeshes(self, start, stop):
+        ngmesh = self._coarse()
+        for level in range(stop):
+            if level >= start:
+                yield ngmesh if level == stop - 1 else ngmesh.Copy()
+            if level < stop - 1:
+                ngmesh.Refine()
+
+
+@dataclass(frozen=True)
+class GeometryDomain(_NetgenDomain):
+    """Any 2D netgen geometry meshed with ``geometry.GenerateMesh(maxh=maxh)``.
+
+    Parameters
+    ----------
+    geometry : netgen geometry
+        E.g. ``netgen.geom2d.SplineGeometry``, ``CSG2d`` or
+        ``netgen.occ.OCCGeometry(..., dim=2)``.
+    maxh : float
+        Maximal mesh size of T_0.
+    label : str
+        Returned by ``name``.
+    curved : bool
+        Whether the boundary is curved (the FE code then calls ``mesh.Curve(p)``).
+    """
+
+    geometry: Any
+    maxh: float
+    label: str = "geometry"
+    curved: bool = True
+
+    def __post_init__(self):
+        if not callable(getattr(self.geometry, "GenerateMesh", None)):
+            _fail(self, "geometry", self.geometry, "a netgen geometry with GenerateMesh")
+        _check_positive(self, "maxh")
+        if not isinstance(self.label, str):
+            _fail(self, "label", self.label, "a string")
+        if not isinstance(self.curved, bool):
+            _fail(self, "curved", self.curved, "a bool")
+
+    @property
+    def name(self) -> str:
+        return f"{self.label} (maxh={self.maxh:g})"
+
+    def _coarse(self):
+        return self.geometry.GenerateMesh(maxh=self.maxh)
+
+
+@dataclass(frozen=True)
+class UnitDisk(GeometryDomain):
+    """The disk of given ``radius`` and ``center`` (boundary name ``boundary``); curved."""
+
+    geometry: Any = field(default=None, init=False, repr=False, compare=False)
+    maxh: float = 0.2
+    label: str = field(default="disk", init=False, repr=False)
+    curved: bool = field(default=True, init=False, repr=False)
+    radius: float = 1.0
+    center: tuple = (0.0, 0.0)
+
+    def __post_init__(self):
+        _check_positive(self, "radius")
+        c = self.center
+        if not (isinstance(c, (tuple, list, np.ndarray)) and len(c) == 2 and all(map(_is_real, c))):
+            _fail(self, "center", c, "a pair of finite numbers")
+        object.__setattr__(self, "center", (float(c[0]), float(c[1])))
+        geo = SplineGeometry()
+        geo.AddCircle(self.center, self.radius, bc="boundary")
+        object.__setattr__(self, "geometry", geo)
+        super().__post_init__()
+
+    @property
+    def name(self) -> str:
+        return f"disk r={self.radius:g} c=({self.center[0]:g},{self.center[1]:g}) (maxh={self.maxh:g})"
+
+
+@dataclass(frozen=True)
+class LShape(GeometryDomain):
+    """L-shaped domain (-1, 1)^2 minus [0, 1] x [-1, 0]: re-entrant corner at the origin."""
+
+    geometry: Any = field(default=None, init=False, repr=False, compare=False)
+    maxh: float = 0.25
+    label: str = field(default="L-shape", init=False, repr=False)
+    curved: bool = field(default=False, init=False, repr=False)
+
+    def __post_init__(self):
+        geo = SplineGeometry()
+        pts = [geo.AppendPoint(*p) for p in [(-1, -1), (0, -1), (0, 0), (1, 0), (1, 1), (-1, 1)]]
+        for p, q in zip(pts, pts[1:] + pts[:1]):
+            geo.Append(["line", p, q], bc="boundary")
+        object.__setattr__(self, "geometry", geo)
+        super().__post_init__()
+
+
+@dataclass(frozen=True)
+class MeshFileDomain(_NetgenDomain):
+    """A 2D triangular netgen mesh read from a ``.vol`` file; levels by netgen refinement.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.vol`` file (a geometry stored in it is used for refinement).
+    curved : bool
+        Whether the boundary is curved.
+    """
+
+    path: str | os.PathLike
+    curved: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.path, (str, os.PathLike)):
+            _fail(self, "path", self.path, "a str or os.PathLike")
+        if not Path(self.path).is_file():
+            raise FileNotFoundError(f"MeshFileDomain.path: no such file {str(self.path)!r}")
+        if not isinstance(self.curved, bool):
+            _fail(self, "curved", self.curved, "a bool")
+
+    @property
+    def name(self) -> str:
+        return f"mesh file {Path(self.path).name}"
+
+    def _coarse(self):
+        mesh = ngm.Mesh(dim=2)
+        try:
+            mesh.Load(str(self.path))
+        except Exception as err:
+            raise ValueError(f"MeshFileDomain.path: cannot read {str(self.path)!r}: {err}") from err
+        if mesh.dim != 2 or len(mesh.Elements2D()) == 0 or len(mesh.Elements3D()) > 0:
+            raise ValueError(f"MeshFileDomain.path: {str(self.path)!r} holds no 2D triangular mesh")
+        return mesh

@@ -1,0 +1,239 @@
+"""Lagrange nodes and the change of basis hierarchical H1 <-> nodal P_p.
+
+NGSolve's ``H1(order=p)`` basis is hierarchical (hat functions, edge and
+cell bubbles).  The contact constraints of [CAMWA21] live at the Lagrange
+nodes x_l and the multiplier is expanded in the basis dual to the Lagrange
+basis (seed slides "Discrete complementarity problem", "Matrix
+representation").  This module builds, for a triangular mesh and an H1
+space,
+
+* the Lagrange lattice points of every element, deduplicated, numbered
+  like the H1 dofs (entity by entity: a vertex node gets the vertex dof's
+  number, the k-th node of an edge the k-th dof of that edge, ...), so that
+  NGSolve's ``FreeDofs()`` marks the interior nodes directly;
+* the sparse evaluation matrix ``V`` (nodal values = V @ coefficients),
+  exact because it is built from ``CalcShape`` of the element itself;
+* its sparse inverse ``T`` (coefficients = T @ nodal values).  Column l of
+  ``T`` holds the hierarchical coefficients of the Lagrange basis function
+  psi_l, hence ``T.T @ A @ T`` is the matrix of a form in the Lagrange basis.
+
+``V`` is block lower triangular with respect to the entity levels vertex <
+edge < cell (edge bubbles vanish at vertices, cell bubbles on edges), so
+with ``V = Dg + L`` (``Dg`` its entity-diagonal blocks) and the nilpotent
+``N = Dg^{-1} L`` (N^3 = 0) one has ``V^{-1} = (I - N + N^2) Dg^{-1}``,
+sparse and local.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from ngsolve import VOL, ElementId, IntegrationRule, x, y
+
+__all__ = ["LagrangeNodes", "lattice"]
+
+
+def lattice(p: int) -> np.ndarray:
+    """Integer barycentric coordinates (b0, b1, b2), b0+b1+b2 = p, of the P_p lattice.
+
+    The reference point of NGSolve's triangle is (b0/p, b1/p)
+    (vertices (1,0), (0,1), (0,0)).
+
+    >>> lattice(1).tolist()
+    [[0, 0, 1], [0, 1, 0], [1, 0, 0]]
+    >>> len(lattice(4))
+    15
+    """
+    pts = [(i, j, p - i - j) for i in range(p + 1) for j in range(p + 1 - i)]
+    return np.array(pts, dtype=int)
+
+
+# local edges of an NGSolve triangle, as pairs of local vertices
+_TRIG_EDGES = ((0, 2), (1, 2), (0, 1))
+
+
+@dataclass
+class LagrangeNodes:
+    """Lagrange nodes of an H1 space of order p on a triangular mesh.
+
+    Attributes
+    ----------
+    V : scipy.sparse.csr_matrix
+        nodal values = V @ H1 coefficients (square, ndof x ndof).
+    T : scipy.sparse.csr_matrix
+        H1 coefficients = T @ nodal values (T = V^{-1}).
+    coords : ndarray (ndof, 2)
+        physical coordinates of node l (node numbering = dof numbering).
+    level : ndarray (ndof,)
+        0 vertex node, 1 edge node, 2 cell node.
+    """
+
+    V: sp.csr_matrix
+    T: sp.csr_matrix
+    coords: np.ndarray
+    level: np.ndarray
+    _mapped: object = None  # mapped lattice points of all elements
+    _first: np.ndarray = None  # index into _mapped of each node (numbered by dof)
+
+    @classmethod
+    def build(cls, fes) -> "LagrangeNodes":
+        """Build nodes, evaluation matrix and its inverse for ``fes = H1(mesh, order=p)``."""
+        mesh = fes.mesh
+        p = fes.globalorder
+        lat = lattice(p)
+        npts = len(lat)
+        ne = mesh.ne
+        ndof = fes.ndof
+        ndof_loc = (p + 1) * (p + 2) // 2
+        if npts != ndof_loc:  # pragma: no cover - guards non-standard spaces
+            raise ValueError(f"H1 space of order {p} has {ndof_loc} local dofs, lattice {npts}")
+
+        # element tables (one cheap Python loop: ~3 us per element)
+        dofs = np.empty((ne, ndof_loc), dtype=np.int64)
+        verts = np.empty((ne, 3), dtype=np.int64)
+        for el in fes.Elements(VOL):
+            dofs[el.nr] = el.dofs
+            verts[el.nr] = [v.nr for v in el.vertices]
+        if ne and dofs.min() < 0:
+            raise ValueError("H1 space has unused (-1) dofs: compress or use a full space")
+
+        # --- node number (= dof number) of every (element, lattice point)
+        node = np.empty((ne, npts), dtype=np.int64)
+        level = np.empty(ndof, dtype=np.int8)
+        nb = p - 1  # nodes per edge
+        cell_counter = 0
+        for j, b in enumerate(lat):
+            nz = np.flatnonzero(b)
+            if len(nz) == 1:  # vertex node
+                node[:, j] = dofs[:, nz[0]]
+                level[dofs[:, nz[0]]] = 0
+            elif len(nz) == 2:  # edge node
+                a, c = nz
+                k = _TRIG_EDGES.index((a, c)) if (a, c) in _TRIG_EDGES else _TRIG_EDGES.index((c, a))
+                ea, eb = _TRIG_EDGES[k]
+                edofs = np.sort(dofs[:, 3 + k * nb: 3 + (k + 1) * nb], axis=1)
+                # position along the edge counted from its smaller global vertex
+                w_big = np.where(verts[:, ea] > verts[:, eb], b[ea], b[eb])
+                node[:, j] = edofs[np.arange(ne), w_big - 1]
+                level[node[:, j]] = 1
+            else:  # cell node
+                cdofs = np.sort(dofs[:, 3 + 3 * nb:], axis=1)
+                node[:, j] = cdofs[:, cell_counter]
+                level[node[:, j]] = 2
+                cell_counter += 1
+
+        # --- local shape values per vertex-order class (shapes depend on it only)
+        cls_id = _order_class(verts)
+        vloc = np.empty((ne, npts, ndof_loc))
+        for c in np.unique(cls_id):
+            rep = int(np.flatnonzero(cls_id == c)[0])
+            fe = fes.GetFE(ElementId(VOL, rep))
+            block = np.array([np.asarray(fe.CalcShape(b[0] / p, b[1] / p)) for b in lat])
+            vloc[cls_id == c] = block
+
+        # --- keep one (element, point) per node: values agree by continuity
+        flat_node = node.ravel()
+        _, first = np.unique(flat_node, return_index=True)
+        if len(first) != ndof:
+            raise ValueError(f"found {len(first)} Lagrange nodes for {ndof} H1 dofs")
+        e_of, j_of = np.divmod(first, npts)
+        rows = np.repeat(flat_node[first], ndof_loc)
+        cols = dofs[e_of].ravel()
+        vals = vloc[e_of, j_of].ravel()
+        keep = np.abs(vals) > 1e-13
+        V = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(ndof, ndof))
+
+        # --- physical coordinates (curved elements included)
+        ir = IntegrationRule([(b[0] / p, b[1] / p, 0.0) for b in lat], [0.0] * npts)
+        mapped = mesh.MapToAllElements(ir, VOL)
+        xs = np.asarray(x(mapped)).ravel()
+        ys = np.asarray(y(mapped)).ravel()
+        coords = np.empty((ndof, 2))
+        coords[flat_node[first], 0] = xs[first]
+        coords[flat_node[first], 1] = ys[first]
+
+        T = _block_triangular_inverse(V, dofs, level, p)
+        by_node = np.empty(ndof, dtype=np.int64)
+        by_node[flat_node[first]] = first
+        return cls(V=V, T=T, coords=coords, level=level, _mapped=mapped, _first=by_node)
+
+    @property
+    def ndof(self) -> int:
+        return self.V.shape[0]
+
+    def evaluate(self, cf) -> np.ndarray:
+        """Values of a scalar CoefficientFunction at every node (vectorized)."""
+        vals = np.asarray(cf(self._mapped)).reshape(-1)
+        return vals[self._first]
+
+    def transform(self, A: sp.spmatrix) -> sp.csr_matrix:
+        """Matrix of a bilinear form in the Lagrange basis: ``T^T A T``."""
+        return (self.T.T @ (A @ self.T)).tocsr()
+
+
+def _order_class(verts: np.ndarray) -> np.ndarray:
+    """Index 0..5 of the permutation sorting each element's global vertex numbers."""
+    perm = np.argsort(verts, axis=1)
+    return perm[:, 0] * 3 + perm[:, 1]
+
+
+def _block_triangular_inverse(V: sp.csr_matrix, dofs: np.ndarray, level: np.ndarray, p: int) -> sp.csr_matrix:
+    """Sparse V^{-1} = (I - N + N^2) Dg^{-1} with Dg the entity blocks of V."""
+    n = V.shape[0]
+    # entity id of every dof: vertex dofs are their own entity; edge/cell dofs
+    # are grouped by the element table (an edge's dofs are contiguous in it).
+    entity = np.arange(n)
+    nb = p - 1
+    for k in range(3):
+        if nb > 0:
+            ed = dofs[:, 3 + k * nb: 3 + (k + 1) * nb]
+            entity[ed] = ed.min(axis=1, keepdims=True)
+    if p >= 3:
+        cd = dofs[:, 3 + 3 * nb:]
+        entity[cd] = cd.min(axis=1, keepdims=True)
+
+    coo = V.tocoo()
+    same = entity[coo.row] == entity[coo.col]
+    Dg = sp.csr_matrix((coo.data[same], (coo.row[same], coo.col[same])), shape=V.shape)
+    L = sp.csr_matrix((coo.data[~same], (coo.row[~same], coo.col[~same])), shape=V.shape)
+    if L.nnz and np.any(level[L.tocoo().row] <= level[L.tocoo().col]):
+        raise ArithmeticError("nodal evaluation matrix is not block lower triangular")
+
+    Dinv = _invert_entity_blocks(Dg, entity)
+    N = (Dinv @ L).tocsr()
+    T = Dinv - N @ Dinv + N @ (N @ Dinv)
+    T = T.tocsr()
+    T.data[np.abs(T.data) < 1e-14 * np.abs(T.data).max()] = 0.0
+    T.eliminate_zeros()
+    return T
+
+
+def _invert_entity_blocks(Dg: sp.csr_matrix, entity: np.ndarray) -> sp.csr_matrix:
+    """Invert a block-diagonal matrix whose blocks are the dofs sharing an entity id."""
+    n = Dg.shape[0]
+    order = np.lexsort((np.arange(n), entity))
+    ent_sorted = entity[order]
+    starts = np.flatnonzero(np.r_[True, ent_sorted[1:] != ent_sorted[:-1]])
+    sizes = np.diff(np.r_[starts, n])
+    local = np.empty(n, dtype=np.int64)
+    local[order] = np.arange(n) - np.repeat(starts, sizes)
+    block_of = np.empty(n, dtype=np.int64)
+    block_of[order] = np.repeat(np.arange(len(starts)), sizes)
+
+    coo = Dg.tocoo()
+    rows, cols, vals = [], [], []
+    for s in np.unique(sizes):
+        blocks = np.flatnonzero(sizes == s)
+        index = -np.ones(len(starts), dtype=np.int64)
+        index[blocks] = np.arange(len(blocks))
+        dense = np.zeros((len(blocks), s, s))
+        sel = index[block_of[coo.row]] >= 0
+        dense[index[block_of[coo.row[sel]]], local[coo.row[sel]], local[coo.col[sel]]] = coo.data[sel]
+        inv = np.linalg.inv(dense)
+        members = order[np.repeat(starts[blocks], s) + np.tile(np.arange(s), len(blocks))].reshape(len(blocks), s)
+        rows.append(np.repeat(members, s, axis=1).ravel())
+        cols.append(np.tile(members, (1, s)).ravel())
+        vals.append(inv.ravel())
+    rows, cols, vals = map(np.concatenate, (rows, cols, vals))
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))

@@ -1,0 +1,167 @@
+"""Semismooth Newton for  K x - B^T D y = F,  C(g(x), y) = 0.
+
+Step k (seed slide "Inexact semismooth Newton method", exact variant):
+A^{k-1} X^k = B^{k-1} with A = [E; J_C(X^{k-1})], solved as a reduced SPD
+system by :meth:`ComplementaritySystem.newton_step`.
+
+* ``cfun='min'``: Newton-min = primal-dual active set; full steps (finite
+  termination once the active set is identified, [CAMWA21] Theorem).
+* ``cfun='fb'``: Newton-Fischer-Burmeister with Armijo backtracking on the
+  merit function Psi = 1/2 ||Phi||^2, Phi = [K x - B^T D y - F; C(g, y)].
+
+Stopping test on the whole system: ||Phi(X^k)|| / ||F|| <= tol (the
+relative ||R_lin|| / ||F|| of [JSC20]).  Non-convergence is never silent:
+the result carries ``converged = False`` and a named ``reason``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, List, Optional
+
+import numpy as np
+
+from .cfunctions import get_cfunction
+from .complementarity import ComplementaritySystem
+
+__all__ = ["NewtonOptions", "IterationRecord", "NewtonResult", "semismooth_newton"]
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Settings of the semismooth Newton loop."""
+
+    cfun: str = "min"
+    tol: float = 1e-10
+    maxit: int = 200
+    line_search: Optional[bool] = None  # default: on for 'fb', off for 'min'
+    armijo: float = 1e-4
+    min_step: float = 2.0 ** -30
+
+    def __post_init__(self):
+        get_cfunction(self.cfun)
+        if not (self.tol > 0):
+            raise ValueError(f"tol must be positive, got {self.tol}")
+        if int(self.maxit) != self.maxit or self.maxit < 1:
+            raise ValueError(f"maxit must be a positive integer, got {self.maxit}")
+
+
+@dataclass
+class IterationRecord:
+    """One Newton iteration (k = 0 is the initial guess)."""
+
+    k: int
+    res: float  # ||Phi|| / ||F||
+    res_lin: float  # ||K x - B^T D y - F|| / ||F||
+    res_c: float  # ||C(g, y)|| / ||F||
+    n_active: int  # constraint rows with g <= y (contact set)
+    n_changed: int  # rows whose active/inactive status changed
+    step: float  # line-search step length
+    time_linear: float  # reduced system factorization + solve
+    time_step: float  # whole iteration
+
+
+@dataclass
+class NewtonResult:
+    """Outcome of :func:`semismooth_newton`."""
+
+    x: np.ndarray
+    y: np.ndarray
+    converged: bool
+    reason: str
+    iterations: int
+    history: List[IterationRecord] = field(default_factory=list)
+
+    @property
+    def time_linear(self) -> float:
+        return sum(r.time_linear for r in self.history)
+
+    @property
+    def time_total(self) -> float:
+        return sum(r.time_step for r in self.history)
+
+
+def semismooth_newton(
+    system: ComplementaritySystem,
+    x0: np.ndarray,
+    y0: np.ndarray,
+    options: NewtonOptions = NewtonOptions(),
+    callback: Optional[Callable[[IterationRecord], None]] = None,
+) -> NewtonResult:
+    """Solve the complementarity system from (x0, y0).
+
+    ``callback(record)`` is called after every iteration (progress output).
+    """
+    cf = get_cfunction(options.cfun)
+    line_search = options.line_search if options.line_search is not None else cf.name == "fb"
+    scale = max(np.linalg.norm(system.F), np.finfo(float).tiny)
+    x, y = np.array(x0, dtype=float), np.array(y0, dtype=float)
+
+    def merit(x, y):
+        r = system.residual(x, y)
+        c = cf.value(system.gap(x), y)
+        return r, c, 0.5 * (r @ r + c @ c)
+
+    t_start = time.perf_counter()
+    r, c, psi = merit(x, y)
+    active = system.gap(x) <= y
+    history = [IterationRecord(0, np.sqrt(2 * psi) / scale, np.linalg.norm(r) / scale,
+                               np.linalg.norm(c) / scale, int(active.sum()), 0, 0.0, 0.0,
+                               time.perf_counter() - t_start)]
+    if callback:
+        callback(history[-1])
+    if history[-1].res <= options.tol:
+        return NewtonResult(x, y, True, "converged", 0, history)
+
+    reason = f"maximum number of iterations ({options.maxit}) reached"
+    for k in range(1, options.maxit + 1):
+        t0 = time.perf_counter()
+        g = system.gap(x)
+        Ca, Cb = cf.jacobian(g, y)
+        x_full, y_full, info = system.newton_step(x, y, c, Ca, Cb)
+        step = 1.0
+        if line_search:
+            dx, dy = x_full - x, y_full - y
+            while True:
+                xt, yt = x + step * dx, y + step * dy
+                rt, ct, psit = merit(xt, yt)
+                if psit <= (1.0 - 2.0 * options.armijo * step) * psi or step < options.min_step:
+                    break
+                step *= 0.5
+            if step < options.min_step:
+                reason = f"line search failed at iteration {k} (step < {options.min_step:.1e})"
+                x, y, r, c, psi = xt, yt, rt, ct, psit
+                history.append(_record(k, r, c, psi, scale, system, x, y, active, step, info, t0))
+                if callback:
+                    callback(history[-1])
+                break
+            x, y, r, c, psi = xt, yt, rt, ct, psit
+        else:
+            x, y = x_full, y_full
+            r, c, psi = merit(x, y)
+        rec = _record(k, r, c, psi, scale, system, x, y, active, step, info, t0)
+        active = system.gap(x) <= y
+        history.append(rec)
+        if callback:
+            callback(rec)
+        if not np.isfinite(rec.res):
+            reason = f"non-finite residual at iteration {k}"
+            break
+        if rec.res <= options.tol:
+            return NewtonResult(x, y, True, "converged", k, history)
+    return NewtonResult(x, y, False, reason, len(history) - 1, history)
+
+
+def _record(k, r, c, psi, scale, system, x, y, active_old, step, info, t0):
+    active = system.gap(x) <= y
+    return IterationRecord(
+        k=k,
+        res=float(np.sqrt(2 * psi) / scale),
+        res_lin=float(np.linalg.norm(r) / scale),
+        res_c=float(np.linalg.norm(c) / scale),
+        n_active=int(active.sum()),
+        n_changed=int((active != active_old).sum()),
+        step=step,
+        time_linear=info.time_solve + info.time_assemble,
+        time_step=time.perf_counter() - t0,
+    )
