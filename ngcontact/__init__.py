@@ -1,0 +1,18 @@
+"""ngcontact: contact problems (variational inequalities) on NGSolve.
+
+Problem data (:mod:`ngcontact.problems`), domains and meshes
+(:mod:`ngcontact.domains`), discretizations (:mod:`ngcontact.discretizations`),
+C-functions and semismooth Newton (:mod:`ngcontact.cfunctions`,
+:mod:`ngcontact.newton`), runs and outputs (:mod:`ngcontact.runner`,
+:mod:`ngcontact.results`, :mod:`ngcontact.plotting`, :mod:`ngcontact.cli`).
+"""
+__version__ = "0.1.0"
+
+from .domains import (CrissCrossSquare, Domain, GeometryDomain, LShape, MeshFileDomain,  # noqa: E402
+                      StructuredSquare, UnitDisk, mesh_size)
+from .problems import ExactSolution, ObstacleProblem, ProblemDataError, TwoMembraneProblem  # noqa: E402
+
+__all__ = [
+    "CrissCrossSquare", "Domain", "GeometryDomain", "LShape", "MeshFileDomain", "StructuredSquare",
+    "UnitDisk", "mesh_size", "ExactSolution", "ObstacleProblem", "ProblemDataError", "TwoMembraneProblem",
+]

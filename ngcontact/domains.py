@@ -64,20 +64,9 @@ def _is_real(v) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _check_positive(obj, *fields: str):
-    for f in fields:
-        v = getattr(obj, f)
-        if not (_is_real(v) and v > 0):
-            _fail(obj, f, v, "a positive finite number")
-
-
-def _check_box(obj):
-    for lo, hi in (("xmin", "xmax"), ("ymin", "ymax")):
-        a, b = getattr(obj, lo), getattr(obj, hi)
-        if not _is_real(a):
-            _fail(obj, lo, a, "a finite number")
-        if not (_is_real(b) and b > a):
-            _fail(obj, hi, b, f"a finite number > {lo} = {a!r}")
+def _check_positive(obj, name: str):
+    if not (_is_real(v := getattr(obj, name)) and v > 0):
+        _fail(obj, name, v, "a positive finite number")
 
 
 def _check_level(level, name: str = "level") -> int:
@@ -118,13 +107,14 @@ class Domain:
             yield ngsolve.Mesh(ngmesh)
 
     def h(self, level: int = 0) -> float:
-        """Mesh size of T_level (largest edge length unless stated otherwise)."""
-        return mesh_size(self.mesh(level))
+        """Mesh size of T_level: ``mesh_size(self.mesh(level))``, cached per level."""
+        level, cache = _check_level(level), self.__dict__.setdefault("_h_cache", {})
+        if level not in cache:
+            cache[level] = mesh_size(self.mesh(level))
+        return cache[level]
 
 
-# --------------------------------------------------------------------------
-# Structured squares: numpy arrays (X, T, S, tag) -> netgen mesh
-# --------------------------------------------------------------------------
+# ---- structured rectangles: numpy arrays (X, T, S, tag) -> netgen mesh ----
 
 def _red_refine(X, T, S, tag):
     """One red refinement of vertex/triangle/segment arrays (straight boundary).
@@ -166,8 +156,8 @@ def _to_ngmesh(X, T, S, tag) -> ngm.Mesh:
     mesh.AddElements(dim=2, index=dom, data=np.ascontiguousarray(T, dtype=np.int32), base=0)
     for k, side in enumerate(_SIDES):
         idx = mesh.AddRegion(side, dim=1)
-        mesh.AddElements(dim=1, index=idx, data=np.ascontiguousarray(S[tag == k], dtype=np.int32),
-                         base=0)
+        seg = np.ascontiguousarray(S[tag == k], dtype=np.int32)
+        mesh.AddElements(dim=1, index=idx, data=seg, base=0)
     return mesh
 
 
@@ -178,10 +168,20 @@ class _BoxDomain(Domain):
     def _box(self):
         return (float(self.xmin), float(self.xmax), float(self.ymin), float(self.ymax))
 
-    def _post_init(self):
+    def __post_init__(self):
         if not (_is_int(self.n0) and self.n0 > 0):
             _fail(self, "n0", self.n0, "a positive integer")
-        _check_box(self)
+        for lo, hi in (("xmin", "xmax"), ("ymin", "ymax")):
+            a, b = getattr(self, lo), getattr(self, hi)
+            if not _is_real(a):
+                _fail(self, lo, a, "a finite number")
+            if not (_is_real(b) and b > a):
+                _fail(self, hi, b, f"a finite number > {lo} = {a!r}")
+
+    @property
+    def name(self) -> str:
+        return (f"{self._kind} {self.n0}x{self.n0} on "
+                f"[{self.xmin:g},{self.xmax:g}]x[{self.ymin:g},{self.ymax:g}]")
 
     def _arrays(self, level: int):
         raise NotImplementedError
@@ -221,18 +221,13 @@ class CrissCrossSquare(_BoxDomain):
         ``left``.
     """
 
+    _kind = "criss-cross"
     n0: int = 4
     xmin: float = 0.0
     xmax: float = 1.0
     ymin: float = 0.0
     ymax: float = 1.0
 
-    def __post_init__(self):
-        self._post_init()
-
-    @property
-    def name(self) -> str:
-        return f"criss-cross {self.n0}x{self.n0} on [{self.xmin:g},{self.xmax:g}]x[{self.ymin:g},{self.ymax:g}]"
 
     def _arrays(self, level):
         n, box = self.n0, self._box
@@ -254,10 +249,11 @@ class CrissCrossSquare(_BoxDomain):
 
 @dataclass(frozen=True)
 class StructuredSquare(_BoxDomain):
-    """Rectangle cut into ``N x N`` cells, each split by the diagonal (x_i, y_j)-(x_{i+1}, y_{j+1}).
+    """Rectangle cut into ``N x N`` cells, each split by one diagonal.
 
-    Level j has ``N = n0 * 2**j`` (the meshes are nested: red refinement of
-    this pattern reproduces it), like PETSc DMDA P1 meshes.
+    All diagonals run from (x_i, y_j) to (x_{i+1}, y_{j+1}) as in PETSc DMDA
+    P1 meshes; level j has ``N = n0 * 2**j``, which is nested (red refinement
+    reproduces the pattern).
 
     Parameters
     ----------
@@ -267,18 +263,13 @@ class StructuredSquare(_BoxDomain):
         The rectangle; boundary names ``bottom``, ``right``, ``top``, ``left``.
     """
 
+    _kind = "structured"
     n0: int = 16
     xmin: float = 0.0
     xmax: float = 1.0
     ymin: float = 0.0
     ymax: float = 1.0
 
-    def __post_init__(self):
-        self._post_init()
-
-    @property
-    def name(self) -> str:
-        return f"structured {self.n0}x{self.n0} on [{self.xmin:g},{self.xmax:g}]x[{self.ymin:g},{self.ymax:g}]"
 
     def _arrays(self, level):
         n = self.n0 * 2 ** level
@@ -289,9 +280,7 @@ class StructuredSquare(_BoxDomain):
         return X, T, S, tag
 
 
-# --------------------------------------------------------------------------
-# Netgen geometries and mesh files: refined by netgen
-# --------------------------------------------------------------------------
+# ---- netgen geometries and mesh files: refined by netgen ----
 
 class _NetgenDomain(Domain):
     """Levels by ``netgen.meshing.Mesh.Refine`` (1 -> 4, boundary points on the geometry)."""
@@ -371,7 +360,8 @@ class UnitDisk(GeometryDomain):
 
     @property
     def name(self) -> str:
-        return f"disk r={self.radius:g} c=({self.center[0]:g},{self.center[1]:g}) (maxh={self.maxh:g})"
+        (cx, cy), r = self.center, self.radius
+        return f"disk r={r:g} c=({cx:g},{cy:g}) (maxh={self.maxh:g})"
 
 
 @dataclass(frozen=True)
@@ -399,13 +389,18 @@ class MeshFileDomain(_NetgenDomain):
     Parameters
     ----------
     path : str or os.PathLike
-        The ``.vol`` file (a geometry stored in it is used for refinement).
+        The ``.vol`` file.
     curved : bool
         Whether the boundary is curved.
+    geometry : netgen geometry, optional
+        Geometry onto which refinement projects new boundary points. By
+        default new points are edge midpoints. (``Mesh.Load`` alone attaches
+        netgen's *global* geometry, the last one meshed, so it is replaced.)
     """
 
     path: str | os.PathLike
     curved: bool = False
+    geometry: Any = field(default=None, compare=False)
 
     def __post_init__(self):
         if not isinstance(self.path, (str, os.PathLike)):
@@ -414,6 +409,8 @@ class MeshFileDomain(_NetgenDomain):
             raise FileNotFoundError(f"MeshFileDomain.path: no such file {str(self.path)!r}")
         if not isinstance(self.curved, bool):
             _fail(self, "curved", self.curved, "a bool")
+        if self.geometry is not None and not isinstance(self.geometry, ngm.NetgenGeometry):
+            _fail(self, "geometry", self.geometry, "None or a netgen geometry")
 
     @property
     def name(self) -> str:
@@ -427,4 +424,5 @@ class MeshFileDomain(_NetgenDomain):
             raise ValueError(f"MeshFileDomain.path: cannot read {str(self.path)!r}: {err}") from err
         if mesh.dim != 2 or len(mesh.Elements2D()) == 0 or len(mesh.Elements3D()) > 0:
             raise ValueError(f"MeshFileDomain.path: {str(self.path)!r} holds no 2D triangular mesh")
+        mesh.SetGeometry(ngm.NetgenGeometry() if self.geometry is None else self.geometry)
         return mesh

@@ -1,0 +1,199 @@
+"""Command line: ``python -m ngcontact {run,list,plot,demo}``.
+
+Examples::
+
+    python -m ngcontact run test1 --order 2 --levels 5
+    python -m ngcontact run path/to/my_scene.py --cfun fb --out out/my
+    python -m ngcontact list
+    python -m ngcontact plot out/a out/b --out compare.png
+
+Bad input (unknown scene, scene with an error, bad option or data) prints
+one line ``ngcontact: error: ...`` and exits with code 2; no partial
+outputs are left.  If Newton does not converge on some level, the outputs
+are written with ``"converged": false`` in summary.json and the exit code is 3.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import traceback
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit code 2
+        raise _UsageError(message)
+
+
+class _UsageError(Exception):
+    pass
+
+
+def _build_parser():
+    p = _Parser(prog="python -m ngcontact", description=__doc__.split("\n\n")[0])
+    p.add_argument("--debug", action="store_true", help="show tracebacks (anywhere on the line)")
+    sub = p.add_subparsers(dest="cmd", parser_class=_Parser)
+
+    r = sub.add_parser("run", help="solve a scene on a sequence of uniformly refined meshes")
+    r.add_argument("scene", help="scene name in cases/ (see `list`) or path to a scene .py file")
+    r.add_argument("--order", type=int, help="polynomial degree p (fem: 1..4)")
+    r.add_argument("--levels", type=int, help="number of mesh levels (T0..T_{L-1})")
+    r.add_argument("--disc", help="discretization (fem)")
+    r.add_argument("--cfun", choices=["min", "fb"], help="C-function: min (Newton-min) or fb (Fischer-Burmeister)")
+    r.add_argument("--start", choices=["nested", "cold"],
+                   help="initial guess per level: nested (prolongate previous level, default) or cold")
+    r.add_argument("--tol", type=float, help="Newton tolerance on ||Phi||/||F|| (default 1e-10)")
+    r.add_argument("--maxit", type=int, help="maximum Newton iterations per level (default 200)")
+    r.add_argument("--solver", choices=["sparsecholesky", "scipy"], help="sparse SPD solver")
+    r.add_argument("--out", help="output directory (default results/runs/SCENE-DISC-pP)")
+    r.add_argument("--no-vtk", action="store_true", help="skip the .vtu output")
+    r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    r.add_argument("--test", action="store_true", help="short run with the scene's TEST_OPTIONS")
+    r.add_argument("-v", "--verbose", action="store_true", help="log every Newton iteration")
+    r.add_argument("-q", "--quiet", action="store_true", help="print only the final table")
+
+    sub.add_parser("list", help="list the bundled scenes")
+
+    pl = sub.add_parser("plot", help="overlay energy error vs ndof and vs time of several runs")
+    pl.add_argument("dirs", nargs="+", help="run directories (with history.csv)")
+    pl.add_argument("--out", required=True, help="PNG file to write")
+    pl.add_argument("--title", default="")
+
+    d = sub.add_parser("demo", help="the default scene: test1, P1 and P2, 4 uniform levels")
+    d.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
+    d.add_argument("--levels", type=int, default=4)
+    return p
+
+
+def format_table(rows, title="") -> str:
+    cols = [("level", "{:>5d}"), ("ndof", "{:>8d}"), ("h", "{:>9.3e}"), ("err_energy", "{:>11.3e}"),
+            ("rate_energy", "{:>6.2f}"), ("err_max_nodal", "{:>10.2e}"), ("newton_its", "{:>6d}"),
+            ("active_nodes", "{:>7d}"), ("time_solve_s", "{:>9.2f}"), ("time_total_s", "{:>9.2f}")]
+    heads = {"level": "level", "ndof": "ndof", "h": "h", "err_energy": "err_energy", "rate_energy": "rate",
+             "err_max_nodal": "err_max", "newton_its": "newton", "active_nodes": "active",
+             "time_solve_s": "solve[s]", "time_total_s": "total[s]"}
+    cols = [(c, f) for c, f in cols if rows and c in rows[0]]
+    width = [len(f.format(0 if "d" in f else 0.0)) for _, f in cols]
+    lines = [title] if title else []
+    lines.append(" ".join(heads[c].rjust(w) for (c, _), w in zip(cols, width)))
+    for r in rows:
+        cells = []
+        for (c, f), w in zip(cols, width):
+            v = r.get(c)
+            if v is None or (isinstance(v, float) and v != v):
+                cells.append("-".rjust(w))
+            else:
+                cells.append(f.format(v))
+        lines.append(" ".join(cells))
+    return "\n".join(lines)
+
+
+def _cmd_run(args, argv) -> int:
+    from .results import write_run
+    from .runner import RunOptions, run_scene
+    from .scenes import load_scene
+
+    scene = load_scene(args.scene)
+    given = dict(order=args.order, levels=args.levels, disc=args.disc, cfun=args.cfun, start=args.start,
+                 tol=args.tol, maxit=args.maxit, solver=args.solver)
+    if args.test:
+        given = {**scene.test_options, **{k: v for k, v in given.items() if v is not None}}
+    options = RunOptions.for_scene(scene, **given)
+    out = Path(args.out or f"results/runs/{scene.name}-{options.disc}-p{options.order}")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a directory")
+    say = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
+    say(f"ngcontact: scene {scene.name} ({scene.description}) | {options.disc} P{options.order}, "
+        f"{options.levels} levels, Newton-{options.cfun}, {options.start} start")
+    newton_cb = None
+    if args.verbose:
+        def newton_cb(level, rec):
+            print(f"  [level {level}] k={rec.k:3d} res={rec.res:.3e} active={rec.n_active} "
+                  f"changed={rec.n_changed} step={rec.step:.3g} linear={rec.time_linear:.3f}s", flush=True)
+    t0 = time.perf_counter()
+    result = run_scene(scene, options, progress=say, newton_callback=newton_cb)
+    write_run(result, out, vtk=not args.no_vtk, plots=not args.no_plots, argv=["python -m ngcontact", *argv])
+    print(format_table(result.rows, f"\n{scene.name}: {options.disc} P{options.order} ({time.perf_counter() - t0:.1f} s)"))
+    print(f"outputs: {out}/ (history.csv, newton.csv, summary.json"
+          + ("" if args.no_plots else ", *.png") + ("" if args.no_vtk else ", solution.vtu") + ")")
+    if not result.converged:
+        for f in result.failures:
+            print(f"ngcontact: warning: {f}", file=sys.stderr)
+        return 3
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from .plotting import plot_compare
+    from .results import write_run
+    from .runner import RunOptions, run_scene
+    from .scenes import load_scene
+
+    scene = load_scene("test1")
+    out = Path(args.out)
+    dirs = []
+    status = 0
+    for p in (1, 2):
+        opts = RunOptions.for_scene(scene, order=p, levels=args.levels)
+        print(f"== demo: {scene.name} ({scene.description}), FEM P{p}, {args.levels} uniform levels", flush=True)
+        res = run_scene(scene, opts, progress=lambda m: print(m, flush=True))
+        d = write_run(res, out / f"p{p}", argv=["python -m ngcontact demo"])
+        dirs.append(d)
+        print(format_table(res.rows, f"\ntest1 FEM P{p}"))
+        print()
+        status = status or (0 if res.converged else 3)
+    png = plot_compare(dirs, out / "convergence.png", title="test1 [CAMWA21]: FEM P1, P2")
+    print(f"outputs: {out}/p1, {out}/p2 (history.csv, summary.json, PNGs, solution.vtu); overview {png}")
+    return status
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = _build_parser()
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
+    try:
+        args = parser.parse_args(argv)
+        if args.cmd is None:
+            parser.print_help()
+            return 2
+        if args.cmd == "list":
+            from .scenes import list_scenes, load_scene
+
+            for name in list_scenes():
+                try:
+                    print(f"{name:14s} {load_scene(name).description}")
+                except Exception as exc:  # a broken scene should not hide the others
+                    print(f"{name:14s} (cannot load: {exc})")
+            return 0
+        if args.cmd == "plot":
+            from .plotting import plot_compare
+
+            for d in args.dirs:
+                if not (Path(d) / "history.csv").is_file():
+                    raise ValueError(f"{d} is not a run directory (no history.csv)")
+            print(plot_compare(args.dirs, args.out, args.title))
+            return 0
+        if args.cmd == "demo":
+            return _cmd_demo(args)
+        return _cmd_run(args, argv)
+    except _UsageError as exc:
+        print(f"ngcontact: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("ngcontact: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, FileNotFoundError, ArithmeticError) as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"ngcontact: error: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"ngcontact: error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
+              file=sys.stderr)
+        return 2

@@ -1,0 +1,131 @@
+"""Plots.  Convergence plots read only the written CSV files (compute, then plot).
+
+matplotlib with the Agg backend, no LaTeX.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .results import read_history  # noqa: E402
+
+__all__ = ["plot_run", "plot_compare", "plot_solution"]
+
+
+def _slope_line(ax, n, e, slope, label):
+    """Reference line e ~ n^slope through the last point."""
+    n = np.asarray(n, float)
+    ref = e[-1] * (n / n[-1]) ** slope
+    ax.loglog(n, ref, "k--", lw=0.8, label=label)
+
+
+def plot_run(run_dir, order: int) -> list:
+    """convergence.png, error_vs_time.png (with an exact solution) and newton.png."""
+    run_dir = Path(run_dir)
+    rows = read_history(run_dir / "history.csv")
+    written = []
+    if rows and "err_energy" in rows[0]:
+        n = np.array([r["ndof"] for r in rows])
+        e = np.array([r["err_energy"] for r in rows])
+        t = np.array([r["time_cum_s"] for r in rows])
+        fig, ax = plt.subplots(figsize=(5, 4))
+        ax.loglog(n, e, "o-", label=f"P{order} energy error")
+        _slope_line(ax, n, e, -order / 2, f"ndof$^{{-{order}/2}}$")
+        ax.set_xlabel("ndof")
+        ax.set_ylabel("energy error")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(run_dir / "convergence.png", dpi=120)
+        plt.close(fig)
+        fig, ax = plt.subplots(figsize=(5, 4))
+        ax.loglog(t, e, "o-", label=f"P{order}")
+        ax.set_xlabel("cumulative run time [s]")
+        ax.set_ylabel("energy error")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(run_dir / "error_vs_time.png", dpi=120)
+        plt.close(fig)
+        written += ["convergence.png", "error_vs_time.png"]
+    newton = run_dir / "newton.csv"
+    if newton.exists():
+        its = read_history(newton)
+        fig, ax = plt.subplots(figsize=(5, 4))
+        for lev in sorted({r["level"] for r in its}):
+            pts = [(r["k"], r["res"]) for r in its if r["level"] == lev and r["res"] > 0]
+            if pts:
+                k, res = zip(*pts)
+                ax.semilogy(k, res, ".-", label=f"level {lev}")
+        ax.set_xlabel("Newton iteration k")
+        ax.set_ylabel(r"$\|\Phi(X^k)\| / \|F\|$")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(run_dir / "newton.png", dpi=120)
+        plt.close(fig)
+        written.append("newton.png")
+    return written
+
+
+def plot_compare(run_dirs, out_file, title: str = "") -> Path:
+    """Energy error vs ndof and vs cumulative time for several runs, side by side."""
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+    for d in map(Path, run_dirs):
+        rows = read_history(d / "history.csv")
+        if not rows or "err_energy" not in rows[0]:
+            continue
+        summary = json.loads((d / "summary.json").read_text())
+        p = summary["options"]["order"]
+        lab = f"{summary['options']['disc'].upper()} P{p}"
+        n = np.array([r["ndof"] for r in rows])
+        e = np.array([r["err_energy"] for r in rows])
+        t = np.array([r["time_cum_s"] for r in rows])
+        (line,) = ax1.loglog(n, e, "o-", label=lab)
+        ref = e[-1] * (n / n[-1]) ** (-p / 2)
+        ax1.loglog(n, ref, "--", color=line.get_color(), lw=0.8, label=f"ndof$^{{-{p}/2}}$")
+        ax2.loglog(t, e, "o-", label=lab)
+    ax1.set_xlabel("ndof")
+    ax2.set_xlabel("cumulative run time [s]")
+    for ax in (ax1, ax2):
+        ax.set_ylabel("energy error")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    out_file = Path(out_file)
+    fig.savefig(out_file, dpi=120)
+    plt.close(fig)
+    return out_file
+
+
+def plot_solution(disc, x, y, out_file) -> Path:
+    """Gap u1 - u2 (or u - psi) with the discrete contact set, and lam_h, at the mesh vertices."""
+    mesh = disc.mesh
+    coords = np.array(mesh.ngmesh.Coordinates())[:, :2]
+    tris = mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
+    gfs = disc.gridfunctions(x, y)
+    pts = mesh(coords[:, 0], coords[:, 1])
+    gap = np.asarray(gfs["gap"](pts)).ravel()
+    lam = np.asarray(gfs["lam"](pts)).ravel()
+    contact = disc.nodes.coords[disc.interior][disc.system.gap(x) <= y]
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4.3))
+    for ax, val, name in ((axs[0], gap, "gap"), (axs[1], lam, r"$\lambda_h$")):
+        tc = ax.tripcolor(coords[:, 0], coords[:, 1], tris, val, shading="gouraud", cmap="viridis")
+        fig.colorbar(tc, ax=ax)
+        ax.set_aspect("equal")
+        ax.set_title(name)
+    axs[0].plot(contact[:, 0], contact[:, 1], "r.", ms=1.5, label="contact nodes")
+    axs[0].legend(loc="upper right", fontsize=7)
+    fig.tight_layout()
+    out_file = Path(out_file)
+    fig.savefig(out_file, dpi=110)
+    plt.close(fig)
+    return out_file

@@ -1,0 +1,177 @@
+"""Writing a run's outputs: history.csv, newton.csv, summary.json, plots, VTK.
+
+Everything is written into a temporary sibling directory that replaces the
+target only once complete, so a failed run never leaves partial outputs
+that look finished.
+
+history.csv columns (one row per level; a column is present only when the
+run computes it -- error columns need an exact solution):
+
+==================  ===========================================================
+level               mesh level j (T_j: j uniform refinements of the coarse mesh)
+nelem               number of triangles
+h                   mesh size (nominal for structured meshes, else max edge)
+ndof                DOFs as counted in [CAMWA21]: (fields + 1) x interior nodes
+nodes               interior Lagrange nodes per field
+err_energy          (sum_a mu_a ||grad(u_a - u_ah)||^2)^(1/2)      [exact only]
+rate_energy         log(e_{j-1}/e_j) / log(h_{j-1}/h_j)              [exact only]
+err_max_nodal       max over nodes |u_a(x_l) - u_ah(x_l)|           [exact only]
+newton_its          semismooth Newton iterations on this level
+newton_converged    1 if ||Phi||/||F|| <= tol was reached, else 0
+res_final           final ||Phi||/||F||
+active_nodes        nodes in the discrete contact set (gap <= X3)
+gap_min             min over nodes of X1 - X2 (or X - psi): >= -tol at convergence
+lam_min             min of X3: >= -tol at convergence
+product_max         max |gap * X3|
+time_mesh_s         building/refining the mesh
+time_assembly_s     spaces, Lagrange nodes, matrices, loads
+time_solve_s        semismooth Newton (all iterations)
+time_linear_s       reduced SPD systems (assembly + factorization + solve)
+time_post_s         errors and diagnostics
+time_total_s        whole level
+time_cum_s          cumulated over levels 0..j
+==================  ===========================================================
+
+newton.csv: one row per (level, iteration k) with res, res_lin, res_c,
+n_active, n_changed, step, time_linear, time_step (see
+:class:`ngcontact.newton.IterationRecord`).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import asdict
+from pathlib import Path
+
+__all__ = ["write_run", "read_history", "HISTORY_COLUMNS"]
+
+HISTORY_COLUMNS = [
+    "level", "nelem", "h", "ndof", "nodes", "err_energy", "rate_energy", "err_max_nodal",
+    "newton_its", "newton_converged", "res_final", "active_nodes", "gap_min", "lam_min",
+    "product_max", "time_mesh_s", "time_assembly_s", "time_solve_s", "time_linear_s",
+    "time_post_s", "time_total_s", "time_cum_s",
+]
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return "" if math.isnan(v) else f"{v:.10g}"
+    return v
+
+
+def _write_csv(path: Path, rows, columns=None):
+    columns = columns or list(rows[0]) if rows else []
+    present = [c for c in columns if any(c in r for r in rows)]
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(present)
+        for r in rows:
+            w.writerow([_fmt(r.get(c, "")) for c in present])
+
+
+def read_history(path) -> list:
+    """Rows of a history.csv as dicts of floats/ints (empty cells -> nan)."""
+    out = []
+    with open(path) as fh:
+        for r in csv.DictReader(fh):
+            row = {}
+            for k, v in r.items():
+                if v == "":
+                    row[k] = float("nan")
+                else:
+                    try:
+                        row[k] = int(v)
+                    except ValueError:
+                        row[k] = float(v)
+            out.append(row)
+    return out
+
+
+def git_revision() -> str:
+    try:
+        here = Path(__file__).resolve().parent
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True,
+                             text=True, timeout=5)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=5)
+        if rev.returncode:
+            return "unknown"
+        return rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except Exception:
+        return "unknown"
+
+
+def versions() -> dict:
+    import matplotlib
+    import numpy
+    import scipy
+    import ngsolve
+
+    from . import __version__
+
+    return {"ngcontact": __version__, "ngsolve": ngsolve.__version__, "numpy": numpy.__version__,
+            "scipy": scipy.__version__, "matplotlib": matplotlib.__version__,
+            "python": platform.python_version()}
+
+
+def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) -> Path:
+    """Write all outputs of a :class:`~ngcontact.runner.RunResult` atomically into ``out_dir``."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{out_dir.name}-", dir=out_dir.parent))
+    try:
+        _write_csv(tmp / "history.csv", result.rows, HISTORY_COLUMNS)
+        _write_csv(tmp / "newton.csv", result.iterations)
+        summary = {
+            "scene": result.scene.name,
+            "scene_file": str(result.scene.path),
+            "problem": type(result.scene.problem).__name__,
+            "domain": result.scene.problem.domain.name,
+            "description": result.scene.description,
+            "options": asdict(result.options),
+            "converged": result.converged,
+            "failures": result.failures,
+            "final": {k: _fmt(v) for k, v in result.rows[-1].items()} if result.rows else {},
+            "versions": versions(),
+            "git_revision": git_revision(),
+            "command": " ".join(argv) if argv else None,
+        }
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        if plots:
+            from .plotting import plot_run
+
+            plot_run(tmp, result.options.order)
+            if result.discretization is not None:
+                from .plotting import plot_solution
+
+                plot_solution(result.discretization, result.x, result.y, tmp / "solution.png")
+        if vtk and result.discretization is not None:
+            _write_vtk(result, tmp / "solution")
+        if out_dir.exists():
+            old = out_dir.with_name(f".old-{out_dir.name}-{os.getpid()}")
+            out_dir.rename(old)
+            tmp.rename(out_dir)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir
+
+
+def _write_vtk(result, basename: Path):
+    from ngsolve import VTKOutput
+
+    disc = result.discretization
+    gfs = disc.gridfunctions(result.x, result.y)
+    names = [n for n in ("u1", "u2", "u", "gap", "lam") if n in gfs]
+    VTKOutput(disc.mesh, coefs=[gfs[n] for n in names], names=names, filename=str(basename),
+              subdivision=max(disc.order - 1, 0), legacy=False).Do()

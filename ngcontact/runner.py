@@ -1,0 +1,150 @@
+"""Run a scene over mesh levels: mesh -> discretize -> Newton -> errors.
+
+Builds no forms itself (that is the discretization's job) and draws nothing
+(that is :mod:`ngcontact.plotting`, reading the written files).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Callable, List, Optional
+
+import numpy as np
+
+from .discretizations import DISCRETIZATIONS
+from .linalg import SOLVERS
+from .newton import NewtonOptions, semismooth_newton
+from .rates import rates
+
+__all__ = ["RunOptions", "RunResult", "run_scene"]
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """What a run computes.  Every field is validated; errors name it."""
+
+    order: int = 1
+    levels: int = 4
+    disc: str = "fem"
+    cfun: str = "min"
+    start: str = "nested"  # 'nested' (prolongate the coarser level) or 'cold'
+    tol: float = 1e-10
+    maxit: int = 200
+    solver: str = "sparsecholesky"
+
+    def __post_init__(self):
+        def bad(name, want):
+            raise ValueError(f"option {name} must be {want}, got {getattr(self, name)!r}")
+
+        if self.disc not in DISCRETIZATIONS:
+            bad("disc", f"one of {sorted(DISCRETIZATIONS)}")
+        if not isinstance(self.order, int) or self.order not in DISCRETIZATIONS[self.disc].orders:
+            bad("order", f"one of {list(DISCRETIZATIONS[self.disc].orders)} for {self.disc}")
+        if not isinstance(self.levels, int) or not 1 <= self.levels <= 12:
+            bad("levels", "an integer between 1 and 12")
+        if self.cfun not in ("min", "fb"):
+            bad("cfun", "'min' or 'fb'")
+        if self.start not in ("nested", "cold"):
+            bad("start", "'nested' or 'cold'")
+        if not (isinstance(self.tol, float) and 0 < self.tol < 1):
+            bad("tol", "a number in (0, 1)")
+        if not isinstance(self.maxit, int) or self.maxit < 1:
+            bad("maxit", "a positive integer")
+        if self.solver not in SOLVERS:
+            bad("solver", f"one of {SOLVERS}")
+
+    @classmethod
+    def for_scene(cls, scene, **given) -> "RunOptions":
+        """Scene defaults, overridden by explicitly given (non-None) options."""
+        opts = {**scene.defaults, **{k: v for k, v in given.items() if v is not None}}
+        unknown = set(opts) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown option(s) {sorted(unknown)} in scene {scene.name} DEFAULTS")
+        return cls(**opts)
+
+
+@dataclass
+class RunResult:
+    """Per-level rows (history.csv), per-iteration rows (newton.csv), final level."""
+
+    scene: object
+    options: RunOptions
+    rows: List[dict] = field(default_factory=list)
+    iterations: List[dict] = field(default_factory=list)
+    discretization: object = None
+    x: Optional[np.ndarray] = None
+    y: Optional[np.ndarray] = None
+    converged: bool = True
+    failures: List[str] = field(default_factory=list)
+
+
+def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], None]] = None,
+              newton_callback=None) -> RunResult:
+    """Solve ``scene`` on levels 0..options.levels-1 of its domain."""
+    say = progress or (lambda msg: None)
+    problem = scene.problem
+    Disc = DISCRETIZATIONS[options.disc]
+    nopts = NewtonOptions(cfun=options.cfun, tol=options.tol, maxit=options.maxit)
+    result = RunResult(scene=scene, options=options)
+    prev, t_cum = None, 0.0
+    meshes = problem.domain.meshes(options.levels)
+    for level in range(options.levels):
+        t0 = time.perf_counter()
+        mesh = next(meshes)
+        t_mesh = time.perf_counter() - t0
+        disc = Disc(problem, mesh, order=options.order, solver=options.solver)
+        if prev is not None and options.start == "nested":
+            x0, y0 = disc.prolongate(prev, result.x, result.y)
+        else:
+            x0, y0 = disc.initial_guess(scene.initial_guess)
+
+        def cb(rec, level=level):
+            result.iterations.append({"level": level, **asdict(rec)})
+            if newton_callback:
+                newton_callback(level, rec)
+
+        t1 = time.perf_counter()
+        sol = semismooth_newton(disc.system, x0, y0, nopts, callback=cb)
+        t2 = time.perf_counter()
+        errs = disc.errors(sol.x, sol.y)
+        comp = disc.complementarity(sol.x, sol.y)
+        t3 = time.perf_counter()
+        total = t3 - t0
+        t_cum += total
+        row = {
+            "level": level,
+            "nelem": mesh.ne,
+            "h": problem.domain.h(level),
+            "ndof": disc.ndof,
+            "nodes": disc.n_interior,
+            **errs,
+            "newton_its": sol.iterations,
+            "newton_converged": int(sol.converged),
+            "res_final": sol.history[-1].res,
+            "active_nodes": sol.history[-1].n_active,
+            **comp,
+            "time_mesh_s": t_mesh,
+            "time_assembly_s": disc.time_assembly,
+            "time_solve_s": t2 - t1,
+            "time_linear_s": sol.time_linear,
+            "time_post_s": t3 - t2,
+            "time_total_s": total,
+            "time_cum_s": t_cum,
+        }
+        result.rows.append(row)
+        if "err_energy" in errs:
+            r = rates([q["h"] for q in result.rows], [q["err_energy"] for q in result.rows])
+            for q, rate in zip(result.rows, r):
+                q["rate_energy"] = rate
+        if not sol.converged:
+            result.converged = False
+            result.failures.append(f"level {level}: Newton did not converge: {sol.reason}")
+        msg = (f"level {level}: ndof {disc.ndof:>8d}  Newton {sol.iterations:3d} its"
+               f" ({'converged' if sol.converged else 'NOT converged: ' + sol.reason})  "
+               f"solve {t2 - t1:7.2f} s")
+        if "err_energy" in errs:
+            rate = row["rate_energy"]
+            msg += f"  err {errs['err_energy']:.3e}" + (f"  rate {rate:.2f}" if np.isfinite(rate) else "")
+        say(msg)
+        result.discretization, result.x, result.y, prev = disc, sol.x, sol.y, disc
+    return result

@@ -1,0 +1,97 @@
+"""Scenes: small importable Python files of problem data (``cases/*.py``).
+
+A scene file defines
+
+* ``problem`` (required): a :class:`~ngcontact.problems.TwoMembraneProblem` or
+  :class:`~ngcontact.problems.ObstacleProblem`;
+* ``DEFAULTS`` (optional): run options used when the command line does not
+  give them, e.g. ``dict(order=2, levels=4)``;
+* ``INITIAL_GUESS`` (optional): a tuple of CoefficientFunctions (one per
+  field) for the cold start of Newton (default: zero inside);
+* ``TEST_OPTIONS`` (optional): a short run for the test suite;
+* its docstring: the description shown by ``ngcontact list``.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+from .problems import ObstacleProblem, TwoMembraneProblem
+
+__all__ = ["Scene", "SceneError", "load_scene", "cases_dir", "list_scenes"]
+
+
+class SceneError(ValueError):
+    """A scene cannot be found or loaded; the message says which and why."""
+
+
+@dataclass
+class Scene:
+    name: str
+    path: Path
+    problem: object
+    description: str = ""
+    defaults: dict = field(default_factory=dict)
+    initial_guess: Optional[tuple] = None
+    test_options: dict = field(default_factory=dict)
+
+
+def cases_dir() -> Path:
+    """Directory of the bundled scenes (``$NGCONTACT_CASES`` overrides)."""
+    env = os.environ.get("NGCONTACT_CASES")
+    return Path(env) if env else Path(__file__).resolve().parent.parent / "cases"
+
+
+def list_scenes() -> list:
+    return sorted(p.stem for p in cases_dir().glob("*.py") if not p.stem.startswith("_"))
+
+
+def load_scene(spec: str) -> Scene:
+    """Load a scene by name (``cases/NAME.py``) or by path to a Python file."""
+    path = Path(spec)
+    if path.suffix == ".py" or os.sep in spec:
+        if not path.is_file():
+            raise SceneError(f"scene file not found: {spec}")
+    else:
+        path = cases_dir() / f"{spec}.py"
+        if not path.is_file():
+            known = ", ".join(list_scenes()) or "none"
+            raise SceneError(f"unknown scene {spec!r} (known: {known}; or give a path to a .py file)")
+    modname = f"ngcontact_scene_{path.stem}"
+    try:
+        spec_ = importlib.util.spec_from_file_location(modname, path)
+        module = importlib.util.module_from_spec(spec_)
+        sys.modules[modname] = module
+        spec_.loader.exec_module(module)
+    except SceneError:
+        raise
+    except Exception as exc:  # the scene's own error, reported in one line
+        where = ""
+        tb = exc.__traceback__
+        while tb is not None:
+            if Path(tb.tb_frame.f_code.co_filename).resolve() == path.resolve():
+                where = f" (line {tb.tb_lineno})"
+            tb = tb.tb_next
+        if isinstance(exc, SyntaxError) and exc.lineno:
+            where = f" (line {exc.lineno})"
+        raise SceneError(f"scene {path.name}{where}: {type(exc).__name__}: {exc}") from exc
+    problem = getattr(module, "problem", None)
+    if not isinstance(problem, (TwoMembraneProblem, ObstacleProblem)):
+        raise SceneError(
+            f"scene {path.name} must define `problem` as a TwoMembraneProblem or ObstacleProblem"
+            f" (got {type(problem).__name__})"
+        )
+    doc = (module.__doc__ or "").strip()
+    return Scene(
+        name=path.stem,
+        path=path.resolve(),
+        problem=problem,
+        description=doc.splitlines()[0] if doc else "",
+        defaults=dict(getattr(module, "DEFAULTS", {})),
+        initial_guess=getattr(module, "INITIAL_GUESS", None),
+        test_options=dict(getattr(module, "TEST_OPTIONS", {})),
+    )
