@@ -1,0 +1,27 @@
+import pytest
+
+from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.discretizations.fem import FEMDiscretization
+from ngcontact.scenes import load_scene
+
+
+@pytest.fixture
+def solve_levels():
+    """Run a bundled scene through the runner; returns the RunResult."""
+    from ngcontact.runner import RunOptions, run_scene
+
+    def _run(scene_name, order, levels, cfun="min", start="nested"):
+        scene = load_scene(scene_name)
+        opts = RunOptions.for_scene(scene, order=order, levels=levels, cfun=cfun, start=start)
+        return run_scene(scene, opts)
+    return _run
+
+
+@pytest.fixture
+def solve_one():
+    def _solve(problem, level=0, order=1, cfun="min", init=None, **kw):
+        disc = FEMDiscretization(problem, problem.domain.mesh(level), order=order)
+        x0, y0 = disc.initial_guess(init)
+        sol = semismooth_newton(disc.system, x0, y0, NewtonOptions(cfun=cfun, **kw))
+        return disc, sol
+    return _solve

@@ -1,0 +1,109 @@
+"""Conforming FEM P1-P4 for the two-membrane and obstacle problems.
+
+Expected rates (energy norm, w.r.t. h): test 1 of [CAMWA21] has a smooth
+solution: p for p = 1, 2, 3; test 2 (lam discontinuous): ~1 for p = 1.
+"""
+import numpy as np
+import pytest
+from ngsolve import x, y
+
+from ngcontact import CrissCrossSquare, ExactSolution, TwoMembraneProblem
+from ngcontact.discretizations.fem import FEMDiscretization
+from ngcontact.rates import fitted_rate
+from ngcontact.scenes import load_scene
+
+# REFERENCE.md, "FEM DOFs (3 fields x interior Lagrange nodes)"
+FEM_DOFS = {
+    0: [75, 339, 795, 1443],
+    1: [339, 1443, 3315, 5955],
+    2: [1443, 5955, 13539, 24195],
+}
+
+
+@pytest.mark.parametrize("level", [0, 1, 2])
+def test_dof_counts_match_camwa21(level):
+    problem = load_scene("test1").problem
+    mesh = problem.domain.mesh(level)
+    counts = [FEMDiscretization(problem, mesh, order=p).ndof for p in (1, 2, 3, 4)]
+    assert counts == FEM_DOFS[level]
+
+
+@pytest.mark.parametrize("p", [1, 2, 3, 4])
+def test_polynomial_solution_without_contact_is_exact(p, solve_one):
+    """The space contains the exact solution and the constraint is inactive -> error ~ 0."""
+    u1 = 2 + x * x + 0.5 * y  # degree 2 <= p (p = 1: linear part only)
+    u2 = -1 - y * y + x
+    if p == 1:
+        u1, u2 = 2 + 0.3 * x + 0.5 * y, -1 + x - y
+    f1 = -2.0 * 1.5 if p > 1 else 0.0
+    f2 = 2.0 * 0.5 if p > 1 else 0.0
+    prob = TwoMembraneProblem(CrissCrossSquare(), f1=f1, f2=f2, g1=u1, g2=u2, mu1=1.5, mu2=0.5,
+                              exact=ExactSolution(u1, u2))
+    disc, sol = solve_one(prob, level=0, order=p)
+    assert sol.converged
+    assert disc.errors(sol.x, sol.y)["err_energy"] < 1e-10
+    assert np.all(sol.y == 0)
+
+
+@pytest.mark.parametrize("p,levels", [(1, 4), (2, 4), (3, 4)])
+def test_test1_energy_rate(p, levels, solve_levels):
+    res = solve_levels("test1", p, levels)
+    h = [r["h"] for r in res.rows]
+    e = [r["err_energy"] for r in res.rows]
+    assert fitted_rate(h, e, last=3) >= p - 0.15
+    assert all(r["newton_converged"] for r in res.rows)
+
+
+def test_test2_energy_rate_p1(solve_levels):
+    res = solve_levels("test2", 1, 4)
+    rate = fitted_rate([r["h"] for r in res.rows], [r["err_energy"] for r in res.rows], last=3)
+    assert rate >= 1 - 0.15
+
+
+def test_obstacle_ex9_rate_and_nodal_error(solve_levels):
+    res = solve_levels("ex9_obstacle", 1, 4)
+    h = [r["h"] for r in res.rows]
+    assert fitted_rate(h, [r["err_energy"] for r in res.rows], last=3) >= 1 - 0.15
+    emax = [r["err_max_nodal"] for r in res.rows]
+    assert all(b < a for a, b in zip(emax, emax[1:]))
+
+
+@pytest.mark.parametrize("p", [1, 2, 3])
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_complementarity_at_convergence(p, cfun, solve_one):
+    disc, sol = solve_one(load_scene("test1").problem, level=2, order=p, cfun=cfun)
+    assert sol.converged, sol.reason
+    # the stopping test ||Phi|| <= tol ||F|| bounds every |C_l| by tol ||F||, hence
+    # the violations of gap >= 0, X3 >= 0 and of gap * X3 = 0 (Newton-min: exactly 0)
+    bound = 1e-10 * np.linalg.norm(disc.system.F)
+    c = disc.complementarity(sol.x, sol.y)
+    assert c["gap_min"] >= -bound
+    assert c["lam_min"] >= -bound
+    assert c["product_max"] <= bound * max(np.abs(sol.y).max(), np.abs(disc.system.gap(sol.x)).max())
+    if cfun == "min":
+        assert c["gap_min"] >= -1e-14 and c["lam_min"] >= -1e-14 * np.abs(sol.y).max()
+    assert np.linalg.norm(disc.system.residual(sol.x, sol.y)) <= 1e-10 * np.linalg.norm(disc.system.F)
+
+
+@pytest.mark.parametrize("p", [1, 2])
+def test_newton_min_and_fb_agree(p, solve_one):
+    problem = load_scene("test2").problem
+    d1, s1 = solve_one(problem, level=2, order=p, cfun="min")
+    d2, s2 = solve_one(problem, level=2, order=p, cfun="fb")
+    assert s1.converged and s2.converged
+    assert np.abs(s1.x - s2.x).max() <= 1e-8 * np.abs(s1.x).max()
+    assert np.abs(s1.y - s2.y).max() <= 1e-6 * np.abs(s1.y).max()
+
+
+def test_nested_and_cold_start_reach_the_same_solution(solve_levels):
+    nested = solve_levels("test2", 1, 3, start="nested")
+    cold = solve_levels("test2", 1, 3, start="cold")
+    np.testing.assert_allclose(nested.x, cold.x, atol=1e-9)
+    assert [r["ndof"] for r in nested.rows] == [r["ndof"] for r in cold.rows]
+
+
+def test_obstacle_solution_stays_above_obstacle(solve_one):
+    disc, sol = solve_one(load_scene("ex9_obstacle").problem, level=1, order=1)
+    assert sol.converged
+    assert disc.system.gap(sol.x).min() >= -1e-12
+    assert sol.y.min() >= -1e-12

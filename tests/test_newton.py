@@ -1,0 +1,70 @@
+"""Semismooth Newton on a small algebraic system with a known solution."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from ngcontact.complementarity import ComplementaritySystem
+from ngcontact.newton import NewtonOptions, semismooth_newton
+
+
+def _system(n=60):
+    """1D two-membrane analogue: membrane 1 pushed down in the middle, up near the ends."""
+    h = 1.0 / (n + 1)
+    t = np.arange(1, n + 1) * h
+    L = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]) / h
+    K = sp.block_diag([L, 2 * L], format="csr")
+    f1 = np.where(np.abs(t - 0.5) < 0.2, -8.0, 6.0)
+    F = np.concatenate([f1 * h, np.ones(n) * h])
+    return ComplementaritySystem(K, F, np.arange(n), n + np.arange(n), np.zeros(n), np.full(n, h))
+
+
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_converges_to_a_complementary_solution(cfun):
+    s = _system()
+    res = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun))
+    assert res.converged and res.reason == "converged"
+    g = s.gap(res.x)
+    assert g.min() >= -1e-12 and res.y.min() >= -1e-12
+    assert np.abs(g * res.y).max() <= 1e-12
+    assert 0 < (res.y > 1e-8).sum() < s.m // 2  # partial contact really happens
+    assert np.linalg.norm(s.residual(res.x, res.y)) <= 1e-10 * np.linalg.norm(s.F)
+
+
+def test_min_and_fb_give_the_same_solution_and_min_terminates_finitely():
+    s = _system()
+    a = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun="min"))
+    b = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun="fb"))
+    np.testing.assert_allclose(a.x, b.x, atol=1e-10)
+    # Newton-min (primal-dual active set) stops with an exact solution: residual at round-off
+    assert a.history[-1].res < 1e-13
+
+
+def test_non_convergence_is_named_not_silent():
+    s = _system()
+    res = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun="min", maxit=1))
+    assert not res.converged
+    assert "maximum number of iterations (1)" in res.reason
+    assert res.iterations == 1
+
+
+def test_history_logs_residuals_active_sets_and_times():
+    s = _system()
+    seen = []
+    res = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(), callback=seen.append)
+    assert len(seen) == res.iterations + 1 == len(res.history)
+    assert all(r.time_linear >= 0 for r in res.history)
+    assert res.history[-1].n_changed == 0 or res.history[-1].res < 1e-10
+    assert [r.k for r in res.history] == list(range(res.iterations + 1))
+
+
+def test_fb_line_search_decreases_the_merit_function():
+    s = _system()
+    res = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun="fb"))
+    r = [h.res for h in res.history]
+    assert all(b < a for a, b in zip(r, r[1:]))
+
+
+@pytest.mark.parametrize("bad", [dict(cfun="max"), dict(tol=-1.0), dict(maxit=0)])
+def test_bad_options_are_rejected(bad):
+    with pytest.raises(ValueError):
+        NewtonOptions(**bad)

@@ -1,0 +1,22 @@
+"""Every bundled scene is importable, runs in its short mode and converges."""
+import numpy as np
+import pytest
+
+from ngcontact.runner import RunOptions, run_scene
+from ngcontact.scenes import list_scenes, load_scene
+
+
+@pytest.mark.parametrize("name", list_scenes())
+def test_scene_runs_in_test_mode(name):
+    scene = load_scene(name)
+    opts = RunOptions.for_scene(scene, **scene.test_options)
+    res = run_scene(scene, opts)
+    assert res.converged, res.failures
+    assert len(res.rows) == opts.levels
+    for r in res.rows:
+        assert r["gap_min"] >= -1e-10
+    assert res.rows[-1]["active_nodes"] > 0  # every scene has a contact zone
+    if scene.problem.exact is not None:
+        e = [r["err_energy"] for r in res.rows]
+        assert all(b < a for a, b in zip(e, e[1:]))
+        assert np.isfinite(e).all()
