@@ -28,3 +28,17 @@ test-slow: $(STAMP)
 
 clean:
 	rm -rf results/runs .pytest_cache
+
+## fem-study: [CAMWA21] tests 1 and 2, FEM P1..P4 on T0..T4 (nested start; cold start for
+## the Newton counts of the paper) -> results/fem/TABLES.md.  `make -j2 fem-study` runs in parallel.
+FEM_RUNS := $(foreach t,test1 test2,$(foreach p,1 2 3 4,results/fem/$(t)-p$(p)-nested)) \
+            $(foreach p,1 2 3 4,results/fem/test1-p$(p)-cold)
+.PHONY: fem-study
+fem-study: $(FEM_RUNS)
+	$(PY) -m ngcontact table $(FEM_RUNS) --out results/fem/TABLES.md
+	$(PY) -m ngcontact plot $(filter results/fem/test1-%-nested,$(FEM_RUNS)) --out results/fem/test1.png --title "test1 [CAMWA21], FEM"
+	$(PY) -m ngcontact plot $(filter results/fem/test2-%-nested,$(FEM_RUNS)) --out results/fem/test2.png --title "test2 [CAMWA21], FEM"
+
+results/fem/%: $(STAMP)
+	$(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
+	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@

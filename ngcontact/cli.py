@@ -62,6 +62,10 @@ def _build_parser():
     pl.add_argument("--out", required=True, help="PNG file to write")
     pl.add_argument("--title", default="")
 
+    tb = sub.add_parser("table", help="markdown tables (error, rate, Newton its, times) of run directories")
+    tb.add_argument("dirs", nargs="+", help="run directories (with history.csv)")
+    tb.add_argument("--out", help="markdown file to write (default: print)")
+
     d = sub.add_parser("demo", help="the default scene: test1, P1 and P2, 4 uniform levels")
     d.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
     d.add_argument("--levels", type=int, default=4)
@@ -176,6 +180,19 @@ def main(argv=None) -> int:
                 if not (Path(d) / "history.csv").is_file():
                     raise ValueError(f"{d} is not a run directory (no history.csv)")
             print(plot_compare(args.dirs, args.out, args.title))
+            return 0
+        if args.cmd == "table":
+            from .results import markdown_table
+
+            for d in args.dirs:
+                if not (Path(d) / "history.csv").is_file():
+                    raise ValueError(f"{d} is not a run directory (no history.csv)")
+            text = markdown_table(args.dirs)
+            if args.out:
+                Path(args.out).write_text(text + "\n")
+                print(args.out)
+            else:
+                print(text)
             return 0
         if args.cmd == "demo":
             return _cmd_demo(args)

@@ -115,7 +115,7 @@ def plot_solution(disc, x, y, out_file) -> Path:
     pts = mesh(coords[:, 0], coords[:, 1])
     gap = np.asarray(gfs["gap"](pts)).ravel()
     lam = np.asarray(gfs["lam"](pts)).ravel()
-    contact = disc.nodes.coords[disc.interior][disc.system.gap(x) <= y]
+    contact = disc.contact_points(x, y)
     fig, axs = plt.subplots(1, 2, figsize=(10, 4.3))
     for ax, val, name in ((axs[0], gap, "gap"), (axs[1], lam, r"$\lambda_h$")):
         tc = ax.tripcolor(coords[:, 0], coords[:, 1], tris, val, shading="gouraud", cmap="viridis")

@@ -50,7 +50,7 @@ import tempfile
 from dataclasses import asdict
 from pathlib import Path
 
-__all__ = ["write_run", "read_history", "HISTORY_COLUMNS"]
+__all__ = ["write_run", "read_history", "markdown_table", "HISTORY_COLUMNS"]
 
 HISTORY_COLUMNS = [
     "level", "nelem", "h", "ndof", "nodes", "err_energy", "rate_energy", "err_max_nodal",
@@ -175,3 +175,29 @@ def _write_vtk(result, basename: Path):
     names = [n for n in ("u1", "u2", "u", "gap", "lam") if n in gfs]
     VTKOutput(disc.mesh, coefs=[gfs[n] for n in names], names=names, filename=str(basename),
               subdivision=max(disc.order - 1, 0), legacy=False).Do()
+
+
+def markdown_table(run_dirs) -> str:
+    """One markdown table per run directory: level, ndof, error, rate, Newton its, times."""
+    out = []
+    for d in map(Path, run_dirs):
+        rows = read_history(d / "history.csv")
+        s = json.loads((d / "summary.json").read_text())
+        o = s["options"]
+        out.append(f"### {s['scene']}: {o['disc'].upper()} P{o['order']}, Newton-{o['cfun']}, {o['start']} start"
+                   + ("" if s["converged"] else "  **(NOT converged: " + "; ".join(s["failures"]) + ")**"))
+        has_err = bool(rows) and "err_energy" in rows[0]
+        head = ["level", "ndof"] + (["err_energy", "rate"] if has_err else []) + \
+            ["Newton its", "solve [s]", "linear [s]", "total [s]"]
+        out.append("| " + " | ".join(head) + " |")
+        out.append("|" + "---|" * len(head))
+        for r in rows:
+            cells = [f"T{r['level']}", str(r["ndof"])]
+            if has_err:
+                rate = r.get("rate_energy", float("nan"))
+                cells += [f"{r['err_energy']:.3e}", "-" if rate != rate else f"{rate:.2f}"]
+            cells += [str(r["newton_its"]), f"{r['time_solve_s']:.2f}", f"{r['time_linear_s']:.2f}",
+                      f"{r['time_total_s']:.2f}"]
+            out.append("| " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out)

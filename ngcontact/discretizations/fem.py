@@ -210,6 +210,10 @@ class FEMDiscretization:
             emax = max(emax, float(np.max(np.abs(exact_nodal - nodal[name]))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
+    def contact_points(self, x, y) -> np.ndarray:
+        """Coordinates (k, 2) of the nodes in the discrete contact set (gap <= X3)."""
+        return self.nodes.coords[self.interior][self.system.gap(x) <= y]
+
     def complementarity(self, x, y) -> dict:
         """Discrete complementarity at the nodes: min gap, min X3, max |gap * X3|."""
         g = self.system.gap(x)
