@@ -41,13 +41,18 @@ def _build_parser():
     r.add_argument("scene", help="scene name in cases/ (see `list`) or path to a scene .py file")
     r.add_argument("--order", type=int, help="polynomial degree p (fem: 1..4)")
     r.add_argument("--levels", type=int, help="number of mesh levels (T0..T_{L-1})")
-    r.add_argument("--disc", help="discretization (fem)")
+    r.add_argument("--disc", choices=["fem", "hho", "sipg", "nipg", "iipg"],
+                   help="discretization: fem (conforming P_p), hho (hybrid high-order), sipg/nipg/iipg (dG)")
     r.add_argument("--cfun", choices=["min", "fb"], help="C-function: min (Newton-min) or fb (Fischer-Burmeister)")
     r.add_argument("--start", choices=["nested", "cold"],
                    help="initial guess per level: nested (prolongate previous level, default) or cold")
     r.add_argument("--tol", type=float, help="Newton tolerance on ||Phi||/||F|| (default 1e-10)")
     r.add_argument("--maxit", type=int, help="maximum Newton iterations per level (default 200)")
     r.add_argument("--solver", choices=["sparsecholesky", "scipy"], help="sparse SPD solver")
+    r.add_argument("--no-condense", action="store_true",
+                   help="hho: solve the full system instead of the statically condensed face system")
+    r.add_argument("--estimate", action="store_true",
+                   help="a posteriori estimators per level (fem): eta, components, I_eff, eta_K maps")
     r.add_argument("--out", help="output directory (default results/runs/SCENE-DISC-pP)")
     r.add_argument("--no-vtk", action="store_true", help="skip the .vtu output")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -73,10 +78,11 @@ def _build_parser():
 
 
 def format_table(rows, title="") -> str:
-    cols = [("level", "{:>5d}"), ("ndof", "{:>8d}"), ("h", "{:>9.3e}"), ("err_energy", "{:>11.3e}"),
-            ("rate_energy", "{:>6.2f}"), ("err_max_nodal", "{:>10.2e}"), ("newton_its", "{:>6d}"),
+    cols = [("level", "{:>5d}"), ("ndof", "{:>8d}"), ("ndof_sc", "{:>8d}"), ("h", "{:>9.3e}"),
+            ("err_energy", "{:>11.3e}"), ("rate_energy", "{:>6.2f}"), ("eta", "{:>10.3e}"), ("i_eff", "{:>6.3f}"),
+            ("err_max_nodal", "{:>10.2e}"), ("newton_its", "{:>6d}"),
             ("active_nodes", "{:>7d}"), ("time_solve_s", "{:>9.2f}"), ("time_total_s", "{:>9.2f}")]
-    heads = {"level": "level", "ndof": "ndof", "h": "h", "err_energy": "err_energy", "rate_energy": "rate",
+    heads = {"level": "level", "ndof": "ndof", "ndof_sc": "ndof_sc", "eta": "eta", "i_eff": "I_eff", "h": "h", "err_energy": "err_energy", "rate_energy": "rate",
              "err_max_nodal": "err_max", "newton_its": "newton", "active_nodes": "active",
              "time_solve_s": "solve[s]", "time_total_s": "total[s]"}
     cols = [(c, f) for c, f in cols if rows and c in rows[0]]
@@ -102,7 +108,8 @@ def _cmd_run(args, argv) -> int:
 
     scene = load_scene(args.scene)
     given = dict(order=args.order, levels=args.levels, disc=args.disc, cfun=args.cfun, start=args.start,
-                 tol=args.tol, maxit=args.maxit, solver=args.solver)
+                 tol=args.tol, maxit=args.maxit, solver=args.solver,
+                 condense=False if args.no_condense else None, estimate=True if args.estimate else None)
     if args.test:
         given = {**scene.test_options, **{k: v for k, v in given.items() if v is not None}}
     options = RunOptions.for_scene(scene, **given)

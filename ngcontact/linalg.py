@@ -10,9 +10,26 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SPDSolver", "SOLVERS"]
+__all__ = ["SPDSolver", "SOLVERS", "ngsolve_coo"]
 
 SOLVERS = ("sparsecholesky", "scipy")
+
+
+def ngsolve_coo(rows, cols, vals, height: int, width: int):
+    """NGSolve ``SparseMatrixd`` from COO triplets (duplicates summed).
+
+    ``CreateFromCOO`` converts numpy arguments element by element (~0.4 us per
+    entry, 1 s for 3e6 entries); filling pyngcore arrays through their buffer
+    views first makes the call ~20x faster (measured 1.1 s -> 0.06 s).
+    """
+    import pyngcore
+    from ngsolve import la
+
+    k = len(vals)
+    arrays = (pyngcore.Array_I_S(k), pyngcore.Array_I_S(k), pyngcore.Array_D_S(k))
+    for arr, src in zip(arrays, (rows, cols, vals)):
+        np.asarray(arr)[:] = src
+    return la.SparseMatrixd.CreateFromCOO(*arrays, height, width)
 
 
 class SPDSolver:
@@ -26,13 +43,9 @@ class SPDSolver:
         if self.n == 0:
             return
         if method == "sparsecholesky":
-            from ngsolve import la
-
             coo = sp.triu(A, format="coo")  # the factorization reads one triangle
             coo = (coo + sp.triu(coo, 1, format="coo").T).tocoo()
-            self._mat = la.SparseMatrixd.CreateFromCOO(
-                coo.row.astype(np.int64), coo.col.astype(np.int64), coo.data, self.n, self.n
-            )
+            self._mat = ngsolve_coo(coo.row, coo.col, coo.data, self.n, self.n)
             self._inv = self._mat.Inverse(inverse="sparsecholesky")
             self._rhs = self._mat.CreateRowVector()
             self._sol = self._mat.CreateColVector()

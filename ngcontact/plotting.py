@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 
 from .results import read_history  # noqa: E402
 
-__all__ = ["plot_run", "plot_compare", "plot_solution"]
+__all__ = ["plot_run", "plot_compare", "plot_solution", "plot_eta_map"]
 
 
 def _slope_line(ax, n, e, slope, label):
@@ -26,34 +26,31 @@ def _slope_line(ax, n, e, slope, label):
 
 
 def plot_run(run_dir, order: int) -> list:
-    """convergence.png, error_vs_time.png (with an exact solution) and newton.png."""
+    """convergence.png and error_vs_time.png (energy error and/or estimator eta) and newton.png."""
     run_dir = Path(run_dir)
     rows = read_history(run_dir / "history.csv")
     written = []
-    if rows and "err_energy" in rows[0]:
+    curves = [(c, lab) for c, lab in (("err_energy", "energy error"), ("eta", r"estimator $\eta$"))
+              if rows and c in rows[0]]
+    if curves:
         n = np.array([r["ndof"] for r in rows])
-        e = np.array([r["err_energy"] for r in rows])
         t = np.array([r["time_cum_s"] for r in rows])
-        fig, ax = plt.subplots(figsize=(5, 4))
-        ax.loglog(n, e, "o-", label=f"P{order} energy error")
-        _slope_line(ax, n, e, -order / 2, f"ndof$^{{-{order}/2}}$")
-        ax.set_xlabel("ndof")
-        ax.set_ylabel("energy error")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(run_dir / "convergence.png", dpi=120)
-        plt.close(fig)
-        fig, ax = plt.subplots(figsize=(5, 4))
-        ax.loglog(t, e, "o-", label=f"P{order}")
-        ax.set_xlabel("cumulative run time [s]")
-        ax.set_ylabel("energy error")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(run_dir / "error_vs_time.png", dpi=120)
-        plt.close(fig)
-        written += ["convergence.png", "error_vs_time.png"]
+        for fname, xs, xlabel in (("convergence.png", n, "ndof"),
+                                  ("error_vs_time.png", t, "cumulative run time [s]")):
+            fig, ax = plt.subplots(figsize=(5, 4))
+            for c, lab in curves:
+                ax.loglog(xs, [r[c] for r in rows], "o-" if c == "err_energy" else "s--", label=f"P{order} {lab}")
+            if fname == "convergence.png":
+                e = np.array([r[curves[0][0]] for r in rows])
+                _slope_line(ax, n, e, -order / 2, f"ndof$^{{-{order}/2}}$")
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel("energy error / estimate")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend()
+            fig.tight_layout()
+            fig.savefig(run_dir / fname, dpi=120)
+            plt.close(fig)
+            written.append(fname)
     newton = run_dir / "newton.csv"
     if newton.exists():
         its = read_history(newton)
@@ -129,3 +126,25 @@ def plot_solution(disc, x, y, out_file) -> Path:
     fig.savefig(out_file, dpi=110)
     plt.close(fig)
     return out_file
+
+
+def plot_eta_map(estimate, out_file, title: str = "") -> Path:
+    """Element indicators eta_K (log colour scale) on the mesh: where the error sits."""
+    from matplotlib.colors import LogNorm
+    from matplotlib.tri import Triangulation
+
+    mesh = estimate.flux.space.mesh
+    pts = np.array([v.point for v in mesh.vertices])
+    tris = np.array([[v.nr for v in el.vertices] for el in mesh.Elements()])
+    eta = np.maximum(np.asarray(estimate.eta_K, float), 1e-300)
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    pos = eta[eta > 1e-300]
+    norm = LogNorm(vmin=max(pos.min(), pos.max() * 1e-6), vmax=pos.max()) if pos.size else None
+    tpc = ax.tripcolor(Triangulation(pts[:, 0], pts[:, 1], tris), facecolors=eta, norm=norm, cmap="viridis")
+    fig.colorbar(tpc, ax=ax, label=r"$\eta_K$")
+    ax.set_aspect("equal")
+    ax.set_title(title or rf"estimator map, $\eta$ = {estimate.eta:.3e}")
+    fig.tight_layout()
+    fig.savefig(out_file, dpi=120)
+    plt.close(fig)
+    return Path(out_file)

@@ -11,11 +11,15 @@ run computes it -- error columns need an exact solution):
 level               mesh level j (T_j: j uniform refinements of the coarse mesh)
 nelem               number of triangles
 h                   mesh size (nominal for structured meshes, else max edge)
-ndof                DOFs as counted in [CAMWA21]: (fields + 1) x interior nodes
+ndof                DOFs as counted in [CAMWA21]: fem (fields + 1) x interior nodes;
+                    hho u1, u2 on cells and interior faces + lam on cells;
+                    dg (fields + 1) x cell nodes
+ndof_sc             hho: size of the statically condensed system (face unknowns)
 nodes               interior Lagrange nodes per field
 err_energy          (sum_a mu_a ||grad(u_a - u_ah)||^2)^(1/2)      [exact only]
 rate_energy         log(e_{j-1}/e_j) / log(h_{j-1}/h_j)              [exact only]
 err_max_nodal       max over nodes |u_a(x_l) - u_ah(x_l)|           [exact only]
+err_jump            dg: jump seminorm (sum_F eta/h_F ||[u_ah - u_a]||_F^2)^(1/2) [exact]
 newton_its          semismooth Newton iterations on this level
 newton_converged    1 if ||Phi||/||F|| <= tol was reached, else 0
 res_final           final ||Phi||/||F||
@@ -27,7 +31,21 @@ time_mesh_s         building/refining the mesh
 time_assembly_s     spaces, Lagrange nodes, matrices, loads
 time_solve_s        semismooth Newton (all iterations)
 time_linear_s       reduced SPD systems (assembly + factorization + solve)
+time_condense_s     hho: static condensation + cell recovery (inside time_solve_s)
 time_post_s         errors and diagnostics
+eta                 guaranteed estimate of |||u - u_h||| (--estimate; [JSC20] Theorem
+                    plus Dirichlet-data and quadrature terms, see ngcontact.estimators)
+eta_seed            the seed Theorem's total (bound of |||u - s~_h|||)
+eta_F, eta_R        flux / residual estimators (sum over K and alpha, squared, root)
+eta_FR              (sum_a (sum_K (eta_F,K,a + eta_R,K,a)^2))^(1/2)
+eta_C               contact estimator sum_K 2 (lam_h^pos, u1h - u2h)_K
+eta_nonc1..3        nonconformity estimators of the seed's Theorem
+eta_quad            data oscillation / quadrature term (0 for polynomial data)
+eta_bc, eps_w       Dirichlet data correction |||w_h||| and its non-orthogonality
+eta_nonc2_seed      seed's C_{Omega,mu} ||lam_h^neg|| (diagnostic, not in eta)
+time_estimate_s     flux reconstruction + estimators
+i_eff               eta / err_energy                                  [exact only]
+rate_eta            log(eta_{j-1}/eta_j) / log(h_{j-1}/h_j)
 time_total_s        whole level
 time_cum_s          cumulated over levels 0..j
 ==================  ===========================================================
@@ -53,10 +71,13 @@ from pathlib import Path
 __all__ = ["write_run", "read_history", "markdown_table", "HISTORY_COLUMNS"]
 
 HISTORY_COLUMNS = [
-    "level", "nelem", "h", "ndof", "nodes", "err_energy", "rate_energy", "err_max_nodal",
-    "newton_its", "newton_converged", "res_final", "active_nodes", "gap_min", "lam_min",
+    "level", "nelem", "h", "ndof", "ndof_sc", "nodes", "err_energy", "rate_energy", "err_max_nodal",
+    "err_jump", "newton_its", "newton_converged", "res_final", "active_nodes", "gap_min", "lam_min",
     "product_max", "time_mesh_s", "time_assembly_s", "time_solve_s", "time_linear_s",
-    "time_post_s", "time_total_s", "time_cum_s",
+    "time_condense_s", "time_post_s",
+    "eta", "rate_eta", "i_eff", "eta_seed", "eta_F", "eta_R", "eta_FR", "eta_C", "eta_nonc1",
+    "eta_nonc2", "eta_nonc3", "eta_quad", "eta_bc", "eps_w", "eta_nonc2_seed", "time_estimate_s",
+    "time_total_s", "time_cum_s",
 ]
 
 
@@ -152,6 +173,10 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
                 from .plotting import plot_solution
 
                 plot_solution(result.discretization, result.x, result.y, tmp / "solution.png")
+            if result.estimate is not None:
+                from .plotting import plot_eta_map
+
+                plot_eta_map(result.estimate, tmp / "eta_map.png")
         if vtk and result.discretization is not None:
             _write_vtk(result, tmp / "solution")
         if out_dir.exists():
@@ -173,7 +198,12 @@ def _write_vtk(result, basename: Path):
     disc = result.discretization
     gfs = disc.gridfunctions(result.x, result.y)
     names = [n for n in ("u1", "u2", "u", "gap", "lam") if n in gfs]
-    VTKOutput(disc.mesh, coefs=[gfs[n] for n in names], names=names, filename=str(basename),
+    coefs = [gfs[n] for n in names]
+    if result.estimate is not None:  # eta_K maps as (piecewise constant) cell data
+        for n, gf in result.estimate.cell_data().items():
+            names.append(n)
+            coefs.append(gf)
+    VTKOutput(disc.mesh, coefs=coefs, names=names, filename=str(basename),
               subdivision=max(disc.order - 1, 0), legacy=False).Do()
 
 

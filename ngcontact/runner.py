@@ -16,7 +16,10 @@ from .linalg import SOLVERS
 from .newton import NewtonOptions, semismooth_newton
 from .rates import rates
 
-__all__ = ["RunOptions", "RunResult", "run_scene"]
+__all__ = ["RunOptions", "RunResult", "run_scene", "ESTIMATED"]
+
+#: discretizations with an a posteriori estimator (:mod:`ngcontact.estimators`)
+ESTIMATED = ("fem",)
 
 
 @dataclass(frozen=True)
@@ -31,6 +34,8 @@ class RunOptions:
     tol: float = 1e-10
     maxit: int = 200
     solver: str = "sparsecholesky"
+    condense: bool = True  # hho: static condensation inside every Newton step
+    estimate: bool = False  # a posteriori estimators per level (fem)
 
     def __post_init__(self):
         def bad(name, want):
@@ -52,6 +57,12 @@ class RunOptions:
             bad("maxit", "a positive integer")
         if self.solver not in SOLVERS:
             bad("solver", f"one of {SOLVERS}")
+        if not isinstance(self.condense, bool):
+            bad("condense", "True or False")
+        if not isinstance(self.estimate, bool):
+            bad("estimate", "True or False")
+        if self.estimate and self.disc not in ESTIMATED:
+            bad("estimate", f"False for disc {self.disc!r} (estimators exist for {sorted(ESTIMATED)})")
 
     @classmethod
     def for_scene(cls, scene, **given) -> "RunOptions":
@@ -74,6 +85,7 @@ class RunResult:
     discretization: object = None
     x: Optional[np.ndarray] = None
     y: Optional[np.ndarray] = None
+    estimate: object = None  # Estimate of the final level (when options.estimate)
     converged: bool = True
     failures: List[str] = field(default_factory=list)
 
@@ -92,7 +104,8 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
         t0 = time.perf_counter()
         mesh = next(meshes)
         t_mesh = time.perf_counter() - t0
-        disc = Disc(problem, mesh, order=options.order, solver=options.solver)
+        kw = {"condense": options.condense} if options.disc == "hho" else {}
+        disc = Disc(problem, mesh, order=options.order, solver=options.solver, **kw)
         if prev is not None and options.start == "nested":
             x0, y0 = disc.prolongate(prev, result.x, result.y)
         else:
@@ -109,13 +122,24 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
         errs = disc.errors(sol.x, sol.y)
         comp = disc.complementarity(sol.x, sol.y)
         t3 = time.perf_counter()
-        total = t3 - t0
+        est, est_cols = None, {}
+        if options.estimate:
+            from .estimators import estimate
+
+            est = estimate(disc, sol.x, sol.y, errors=False)
+            if "err_energy" in errs:
+                est.err_energy = errs["err_energy"]
+            est_cols = est.summary()
+            result.estimate = est
+        t4 = time.perf_counter()
+        total = t4 - t0
         t_cum += total
         row = {
             "level": level,
             "nelem": mesh.ne,
             "h": problem.domain.h(level),
             "ndof": disc.ndof,
+            **({"ndof_sc": disc.ndof_sc} if hasattr(disc, "ndof_sc") else {}),
             "nodes": disc.n_interior,
             **errs,
             "newton_its": sol.iterations,
@@ -127,7 +151,9 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             "time_assembly_s": disc.time_assembly,
             "time_solve_s": t2 - t1,
             "time_linear_s": sol.time_linear,
+            **({"time_condense_s": disc.time_condense} if hasattr(disc, "time_condense") else {}),
             "time_post_s": t3 - t2,
+            **est_cols,
             "time_total_s": total,
             "time_cum_s": t_cum,
         }
@@ -136,6 +162,10 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             r = rates([q["h"] for q in result.rows], [q["err_energy"] for q in result.rows])
             for q, rate in zip(result.rows, r):
                 q["rate_energy"] = rate
+        if "eta" in est_cols:
+            r = rates([q["h"] for q in result.rows], [q["eta"] for q in result.rows])
+            for q, rate in zip(result.rows, r):
+                q["rate_eta"] = rate
         if not sol.converged:
             result.converged = False
             result.failures.append(f"level {level}: Newton did not converge: {sol.reason}")
@@ -145,6 +175,8 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
         if "err_energy" in errs:
             rate = row["rate_energy"]
             msg += f"  err {errs['err_energy']:.3e}" + (f"  rate {rate:.2f}" if np.isfinite(rate) else "")
+        if est is not None:
+            msg += f"  eta {est.eta:.3e}" + (f"  I_eff {est.i_eff:.3f}" if "i_eff" in est_cols else "")
         say(msg)
         result.discretization, result.x, result.y, prev = disc, sol.x, sol.y, disc
     return result

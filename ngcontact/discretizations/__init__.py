@@ -3,11 +3,37 @@
 Each class takes ``(problem, mesh, order=..., solver=...)`` and exposes
 ``system`` (:class:`~ngcontact.complementarity.ComplementaritySystem`),
 ``ndof``, ``initial_guess``, ``prolongate``, ``gridfunctions``, ``errors``,
-``complementarity`` and ``time_assembly``.
+``complementarity``, ``contact_points`` and ``time_assembly``.
+
+Registry keys are the CLI's ``--disc`` values:
+
+* ``fem``  -- conforming P_p, p = 1..4 (:mod:`.fem`);
+* ``hho``  -- hybrid high-order with static condensation (:mod:`.hho`);
+* ``sipg``, ``nipg``, ``iipg`` -- interior penalty dG, theta = 1, -1, 0 (:mod:`.dg`).
 """
+from .dg import DGDiscretization
 from .fem import FEMDiscretization
+from .hho import HHODiscretization
 
 
-DISCRETIZATIONS = {"fem": FEMDiscretization}
+def _dg_variant(variant: str):
+    class _Variant(DGDiscretization):
+        __doc__ = f"{variant.upper()} interior penalty dG (see :class:`DGDiscretization`)."
+        name = variant
 
-__all__ = ["DISCRETIZATIONS", "FEMDiscretization"]
+        def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", **kw):
+            super().__init__(problem, mesh, order=order, solver=solver, variant=variant, **kw)
+
+    _Variant.__name__ = _Variant.__qualname__ = f"{variant.upper()}Discretization"
+    return _Variant
+
+
+DISCRETIZATIONS = {
+    "fem": FEMDiscretization,
+    "hho": HHODiscretization,
+    "sipg": _dg_variant("sipg"),
+    "nipg": _dg_variant("nipg"),
+    "iipg": _dg_variant("iipg"),
+}
+
+__all__ = ["DISCRETIZATIONS", "FEMDiscretization", "HHODiscretization", "DGDiscretization"]

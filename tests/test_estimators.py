@@ -1,0 +1,181 @@
+"""A posteriori estimates by equilibrated fluxes ([JSC20], seed "Theorem (A posteriori error estimate)").
+
+Structural checks (equilibration, normal continuity), the guaranteed bound
+I_eff >= 1 on every level, effectivity on the finer levels, eta = 0 when the
+discrete space contains the exact solution, and the estimator converging at
+the error's rate.  Known failures are xfail with the measured values.
+"""
+import pytest
+from ngsolve import x, y
+
+from ngcontact import CrissCrossSquare, ExactSolution, TwoMembraneProblem
+from ngcontact.discretizations.fem import FEMDiscretization
+from ngcontact.estimators import (complementarity_report, equilibration_defect, estimate, normal_jump,
+                                  reconstruct_fluxes)
+from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.rates import fitted_rate
+from ngcontact.scenes import load_scene
+
+# (scene, p) -> number of levels run (whole file < 60 s).  P1 on the squares needs T3 for the
+# Dirichlet-data correction to fade (I_eff(T2) = 1.31 / 1.39, I_eff(T3) = 1.21 / 1.27).
+LEVELS = {("test1", 1): 4, ("test1", 2): 3, ("test2", 1): 4, ("test2", 2): 3, ("disk", 1): 3, ("disk", 2): 3}
+_CACHE = {}
+
+
+def study(scene_name, p):
+    """Solve (cold start) and estimate on every level; cached per module run."""
+    key = (scene_name, p)
+    if key not in _CACHE:
+        scene = load_scene(scene_name)
+        prob = scene.problem
+        rows = []
+        for level, mesh in enumerate(prob.domain.meshes(LEVELS[key])):
+            disc = FEMDiscretization(prob, mesh, order=p)
+            x0, y0 = disc.initial_guess(scene.initial_guess)
+            sol = semismooth_newton(disc.system, x0, y0, NewtonOptions())
+            assert sol.converged
+            est = estimate(disc, sol.x, sol.y)
+            rows.append(dict(level=level, h=prob.domain.h(level), est=est,
+                             eq=equilibration_defect(disc, est.flux), jump=normal_jump(est.flux)))
+        _CACHE[key] = rows
+    return _CACHE[key]
+
+
+CASES = sorted(LEVELS)
+
+
+@pytest.mark.parametrize("scene,p", CASES)
+def test_equilibration(scene, p):
+    """max_K ||Pi_q(f_a + s_a lam^_h - div sigma_ah)||_K / ||Pi_q(f_a + s_a lam^_h)|| <= 1e-10 on every level
+    (moment sense: on the curved disk elements div sigma is not a mapped polynomial)."""
+    for row in study(scene, p):
+        assert max(v["max_K"] for v in row["eq"].values()) <= 1e-10, row["level"]
+
+
+@pytest.mark.parametrize("scene,p", CASES)
+def test_normal_continuity(scene, p):
+    """The sum of the patch fluxes is in H(div): relative normal jumps at round-off."""
+    for row in study(scene, p):
+        assert max(row["jump"].values()) <= 1e-12, row["level"]
+
+
+@pytest.mark.parametrize("scene,p", CASES)
+def test_guaranteed_bound(scene, p):
+    """eta >= |||u - u_h||| on every level (I_eff >= 1)."""
+    for row in study(scene, p):
+        assert row["est"].i_eff >= 1.0, (row["level"], row["est"].i_eff)
+
+
+@pytest.mark.parametrize("scene,p", [
+    ("test1", 1), ("test1", 2), ("test2", 1), ("disk", 1),
+    pytest.param("test2", 2, marks=pytest.mark.xfail(
+        strict=True, reason="lam jumps across r = R (not mesh-aligned): data oscillation h/pi ||f - Pi_2 f|| "
+        "and the P1 multiplier are O(h^1.5) like the P2 error; measured I_eff 3.52, 4.05, 4.78 (T0-T2), "
+        "5.44 (T3)")),
+    pytest.param("disk", 2, marks=pytest.mark.xfail(
+        strict=True, reason="lam and f jump across r = 1/sqrt 2: eta_R (oscillation of f) alone is ~1.4 x error; "
+        "measured I_eff 4.38, 4.26, 3.96 (levels 0-2), 3.99 (level 3)")),
+])
+def test_effectivity_on_finest_level(scene, p):
+    """I_eff <= 1.3 on the finest level run (disk P1: published 1.034-1.038 [JSC20])."""
+    est = study(scene, p)[-1]["est"]
+    assert est.i_eff <= 1.3, est.i_eff
+
+
+def test_disk_p1_effectivity_close_to_published():
+    """Disk P1, exact Newton: 1 <= I_eff <= 1.10 ([JSC20]: 1.034-1.038 on 2k-35k elements).
+
+    Checked from level 1 (1088 triangles) on; level 0 (272 triangles, coarser
+    than the published meshes) gives 1.114.  Measured: 1.076, 1.066 (levels
+    1, 2), 1.055, 1.043 (levels 3, 4); without eta_quad (the FE load
+    quadrature of the discontinuous f) level 3 gives 1.038.
+    """
+    for row in study("disk", 1)[1:]:
+        assert 1.0 <= row["est"].i_eff <= 1.10, (row["level"], row["est"].i_eff)
+
+
+@pytest.mark.parametrize("scene,p", CASES)
+def test_estimator_rate_matches_error_rate(scene, p):
+    """eta converges at the error's rate (fitted over the last two levels run)."""
+    rows = study(scene, p)
+    h = [r["h"] for r in rows]
+    rate_eta = fitted_rate(h, [r["est"].eta for r in rows], last=2)
+    rate_err = fitted_rate(h, [r["est"].err_energy for r in rows], last=2)
+    assert abs(rate_eta - rate_err) <= 0.3, (rate_eta, rate_err)
+
+
+@pytest.mark.parametrize("p", [1, 2])
+def test_eta_vanishes_for_polynomial_solution_without_contact(p):
+    """Membranes far apart, u_alpha in P_p, f constant: sigma = -mu grad u_h exactly, eta = 0."""
+    if p == 1:
+        u1, u2, f1, f2 = 2 + 0.3 * x + 0.5 * y, -1 + x - y, 0.0, 0.0
+    else:
+        u1, u2, f1, f2 = 2 + x * x + 0.5 * y, -1 - y * y + x, -2.0 * 1.5, 2.0 * 0.5
+    prob = TwoMembraneProblem(CrissCrossSquare(), f1=f1, f2=f2, g1=u1, g2=u2, mu1=1.5, mu2=0.5,
+                              exact=ExactSolution(u1, u2))
+    disc = FEMDiscretization(prob, prob.domain.mesh(1), order=p)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
+    est = estimate(disc, sol.x, sol.y)
+    assert est.eta < 1e-10
+    assert est.eta_bc == 0.0 and est.eta_nonc1 == 0.0
+    cells = est.cell_data()
+    assert set(cells) == {"eta_K", "eta_C", "eta_F_u1", "eta_F_u2", "eta_R_u1", "eta_R_u2"}
+
+
+def test_flux_order_and_signs():
+    """RT_0 is also equilibrated (in the means) but less effective than the default RT_1 for p = 1."""
+    scene = load_scene("disk")
+    prob = scene.problem
+    disc = FEMDiscretization(prob, prob.domain.mesh(1), order=1)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    flux0 = reconstruct_fluxes(disc, sol.x, sol.y, order=0)
+    assert max(v["max_K"] for v in equilibration_defect(disc, flux0).values()) <= 1e-10
+    assert [fd.sign for fd in flux0.fields] == [1, -1]
+    e0 = estimate(disc, sol.x, sol.y, flux=flux0)
+    e1 = estimate(disc, sol.x, sol.y)
+    assert 1.0 <= e1.i_eff < e0.i_eff
+
+
+def test_complementarity_report_at_convergence():
+    scene = load_scene("disk")
+    prob = scene.problem
+    disc = FEMDiscretization(prob, prob.domain.mesh(0), order=1)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    rep = complementarity_report(disc, sol.x, sol.y)
+    assert rep["gap_min_nodal"] >= -1e-12 and rep["y_min"] >= -1e-12
+    assert rep["product_max_nodal"] <= 1e-12
+    assert rep["lam_neg_L2"] <= 1e-12  # p = 1: nodal signs give pointwise signs
+    assert rep["contact_product"] >= 0.0
+
+
+def test_nonconformity_estimator_sees_a_kg_violation():
+    """A Newton iterate with u1h < u2h somewhere has eta_nonc1 > 0 and stays a bound."""
+    scene = load_scene("disk")
+    prob = scene.problem
+    disc = FEMDiscretization(prob, prob.domain.mesh(1), order=1)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions(maxit=1))
+    assert disc.system.gap(sol.x).min() < 0
+    est = estimate(disc, sol.x, sol.y)
+    assert est.eta_nonc1 > 0
+    assert est.i_eff >= 1.0
+
+
+@pytest.mark.slow
+def test_estimation_time_vs_newton_at_1e5_dofs():
+    """Benchmark (issue 4): estimation <= 2 x Newton solve time, disk P1 level 4 (103491 dofs).
+
+    Measured (2 cores, loaded machine): estimate 4.7 s (fluxes 3.8 s), Newton-min cold
+    start 5.8 s (20 its): ratio 0.8; nested start 1.2 s (4 its): ratio 4.0.
+    """
+    import time
+
+    scene = load_scene("disk")
+    prob = scene.problem
+    disc = FEMDiscretization(prob, prob.domain.mesh(4), order=1)
+    assert disc.ndof == 103491
+    t0 = time.perf_counter()
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    t_newton = time.perf_counter() - t0
+    est = estimate(disc, sol.x, sol.y)
+    assert 1.0 <= est.i_eff <= 1.10
+    assert est.time_total <= 2.0 * t_newton, (est.time_total, t_newton)
