@@ -42,3 +42,18 @@ fem-study: $(FEM_RUNS)
 results/fem/%: $(STAMP)
 	$(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
 	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@
+
+## compare: issue 3 study -- FEM vs HHO (SC / no SC) vs SIPG / NIPG on [CAMWA21] tests 1, 2,
+## p = 1..4, T0..T4 (nested start), plus cold-start Newton counts of FEM and HHO
+## -> results/compare/REPORT.md.  `make -j2 compare` runs the independent runs in parallel.
+CMP_METHODS := fem hho hho-nosc sipg nipg
+CMP_RUNS := $(foreach t,test1 test2,$(foreach m,$(CMP_METHODS),$(foreach p,1 2 3 4,results/compare/runs/$(t)-$(firstword $(subst -, ,$(m)))-p$(p)-nested$(if $(findstring nosc,$(m)),-nosc)))) \
+            $(foreach t,test1 test2,$(foreach m,fem hho,$(foreach p,1 2 3 4,results/compare/runs/$(t)-$(m)-p$(p)-cold)))
+.PHONY: compare
+compare: $(CMP_RUNS)
+	$(PY) -m ngcontact.compare results/compare $(CMP_RUNS)
+
+results/compare/runs/%: $(STAMP)
+	$(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --disc $(word 2,$(subst -, ,$*)) \
+	  --order $(subst p,,$(word 3,$(subst -, ,$*))) --start $(word 4,$(subst -, ,$*)) \
+	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels 5 --no-vtk --no-plots -q --out $@

@@ -59,6 +59,7 @@ class IterationRecord:
     step: float  # line-search step length
     time_linear: float  # reduced system factorization + solve
     time_step: float  # whole iteration
+    linear_size: int = 0  # unknowns of the linear system actually solved (reduced / condensed)
 
 
 @dataclass
@@ -164,4 +165,5 @@ def _record(k, r, c, psi, scale, system, x, y, active_old, step, info, t0):
         step=step,
         time_linear=info.time_solve + info.time_assemble,
         time_step=time.perf_counter() - t0,
+        linear_size=int(getattr(info, "reduced_size", 0)),
     )

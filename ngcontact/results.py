@@ -24,6 +24,8 @@ newton_its          semismooth Newton iterations on this level
 newton_converged    1 if ||Phi||/||F|| <= tol was reached, else 0
 res_final           final ||Phi||/||F||
 active_nodes        nodes in the discrete contact set (gap <= X3)
+linear_size         largest linear system solved in a Newton step (reduced SPD /
+                    condensed face system / full system)
 gap_min             min over nodes of X1 - X2 (or X - psi): >= -tol at convergence
 lam_min             min of X3: >= -tol at convergence
 product_max         max |gap * X3|
@@ -72,7 +74,7 @@ __all__ = ["write_run", "read_history", "markdown_table", "HISTORY_COLUMNS"]
 
 HISTORY_COLUMNS = [
     "level", "nelem", "h", "ndof", "ndof_sc", "nodes", "err_energy", "rate_energy", "err_max_nodal",
-    "err_jump", "newton_its", "newton_converged", "res_final", "active_nodes", "gap_min", "lam_min",
+    "err_jump", "newton_its", "newton_converged", "res_final", "active_nodes", "linear_size", "gap_min", "lam_min",
     "product_max", "time_mesh_s", "time_assembly_s", "time_solve_s", "time_linear_s",
     "time_condense_s", "time_post_s",
     "eta", "rate_eta", "i_eff", "eta_seed", "eta_F", "eta_R", "eta_FR", "eta_C", "eta_nonc1",

@@ -146,6 +146,7 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             "newton_converged": int(sol.converged),
             "res_final": sol.history[-1].res,
             "active_nodes": sol.history[-1].n_active,
+            "linear_size": max((r.linear_size for r in sol.history), default=0),
             **comp,
             "time_mesh_s": t_mesh,
             "time_assembly_s": disc.time_assembly,
