@@ -57,3 +57,28 @@ results/compare/runs/%: $(STAMP)
 	$(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --disc $(word 2,$(subst -, ,$*)) \
 	  --order $(subst p,,$(word 3,$(subst -, ,$*))) --start $(word 4,$(subst -, ,$*)) \
 	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels 5 --no-vtk --no-plots -q --out $@
+
+## inexact-study: issue 5 -- exact / inexact / adaptive inexact semismooth Newton (GMRES + ILU) on the
+## [JSC20] disk test, P1 and P2, 2k..35k elements, (gamma_alg, gamma_lin) table -> results/inexact/TABLES.md
+.PHONY: inexact-study
+inexact-study: $(STAMP)
+	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.inexact results/inexact
+
+## sweep: issue 6 -- uniform vs adaptive (Doerfler 0.5, bisection, warm start) FEM P1..P3 on lshape, test1,
+## disk, point_load; one independent target per run (`make -j2 sweep`); entries: ngcontact/report.py SWEEP.
+## report: reads only the sweep's CSVs -> results/REPORT.md + results/report/*.png
+SWEEP_RUNS := $(foreach s,lshape test1 disk point_load,$(foreach m,uniform adaptive,$(foreach p,1 2 3,results/sweep/runs/$(s)-$(m)-p$(p))))
+.PHONY: sweep report
+sweep: $(SWEEP_RUNS)
+
+results/sweep/runs/%: $(STAMP)
+	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.report run $* $@
+
+report: $(STAMP)
+	$(PY) -m ngcontact.report report results/sweep/runs results/REPORT.md results/report
+
+## bench: issue 7 benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
+##        -> results/bench/*.csv + results/bench/BENCH.md.  Not part of `make test`.
+.PHONY: bench
+bench: $(STAMP)
+	$(PY) -m benchmarks.bench_contact --out results/bench

@@ -53,6 +53,22 @@ def _build_parser():
                    help="hho: solve the full system instead of the statically condensed face system")
     r.add_argument("--estimate", action="store_true",
                    help="a posteriori estimators per level (fem): eta, components, I_eff, eta_K maps")
+    r.add_argument("--newton", choices=["exact", "exact-gmres", "inexact", "adaptive"],
+                   help="Newton linear solves: exact (direct, default), exact-gmres (GMRES+ILU to ||R||/||B|| <= 2e-12), "
+                        "inexact (GMRES, forcing term), adaptive (GMRES, estimator-based stopping [JSC20]); fem only")
+    r.add_argument("--gamma-alg", type=float, dest="gamma_alg",
+                   help="adaptive: stop GMRES when eta_alg <= GAMMA_ALG max(eta_disc, eta_lin) (default 0.3)")
+    r.add_argument("--gamma-lin", type=float, dest="gamma_lin",
+                   help="adaptive: stop Newton when eta_lin <= GAMMA_LIN eta_disc (default 0.3)")
+    r.add_argument("--nu", type=int, help="adaptive: GMRES iterations between estimator evaluations (default 10)")
+    r.add_argument("--adaptive", action="store_true",
+                   help="adaptive refinement (fem): solve -> estimate -> mark -> bisect, warm-started Newton")
+    r.add_argument("--marking", choices=["doerfler", "max"], help="with --adaptive: marking strategy (default doerfler)")
+    r.add_argument("--theta", type=float, help="with --adaptive: marking parameter in (0, 1] (default 0.5)")
+    r.add_argument("--max-ndof", type=int, dest="max_ndof", help="with --adaptive: DOF budget (no level above it)")
+    r.add_argument("--target-eta", type=float, dest="target_eta", help="with --adaptive: stop when eta <= E")
+    r.add_argument("--max-time", type=float, dest="max_time", help="with --adaptive: wall-time budget [s]")
+    r.add_argument("--max-levels", type=int, dest="max_levels", help="with --adaptive: at most L levels (default 30)")
     r.add_argument("--out", help="output directory (default results/runs/SCENE-DISC-pP)")
     r.add_argument("--no-vtk", action="store_true", help="skip the .vtu output")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -109,16 +125,26 @@ def _cmd_run(args, argv) -> int:
     scene = load_scene(args.scene)
     given = dict(order=args.order, levels=args.levels, disc=args.disc, cfun=args.cfun, start=args.start,
                  tol=args.tol, maxit=args.maxit, solver=args.solver,
-                 condense=False if args.no_condense else None, estimate=True if args.estimate else None)
+                 condense=False if args.no_condense else None, estimate=True if args.estimate else None,
+                 newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu)
+    adaptive_opts = dict(marking=args.marking, theta=args.theta, max_ndof=args.max_ndof, target_eta=args.target_eta,
+                         max_time=args.max_time, max_levels=args.max_levels)
+    if not args.adaptive and any(v is not None for v in adaptive_opts.values()):
+        used = [k for k, v in adaptive_opts.items() if v is not None]
+        raise _UsageError(f"option(s) {', '.join('--' + k.replace('_', '-') for k in used)} need --adaptive")
+    given.update(adaptive=True if args.adaptive else None, **adaptive_opts)
     if args.test:
         given = {**scene.test_options, **{k: v for k, v in given.items() if v is not None}}
     options = RunOptions.for_scene(scene, **given)
     out = Path(args.out or f"results/runs/{scene.name}-{options.disc}-p{options.order}")
+    if options.adaptive and not args.out:
+        out = out.with_name(out.name + "-adaptive")
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a directory")
     say = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
     say(f"ngcontact: scene {scene.name} ({scene.description}) | {options.disc} P{options.order}, "
-        f"{options.levels} levels, Newton-{options.cfun}, {options.start} start")
+        + (f"adaptive ({options.marking}, theta={options.theta:g}), " if options.adaptive else f"{options.levels} levels, ")
+        + f"Newton-{options.cfun}, {options.start} start")
     newton_cb = None
     if args.verbose:
         def newton_cb(level, rec):
@@ -128,6 +154,8 @@ def _cmd_run(args, argv) -> int:
     result = run_scene(scene, options, progress=say, newton_callback=newton_cb)
     write_run(result, out, vtk=not args.no_vtk, plots=not args.no_plots, argv=["python -m ngcontact", *argv])
     print(format_table(result.rows, f"\n{scene.name}: {options.disc} P{options.order} ({time.perf_counter() - t0:.1f} s)"))
+    if result.stop_reason:
+        print(f"adaptive loop stopped: {result.stop_reason}")
     print(f"outputs: {out}/ (history.csv, newton.csv, summary.json"
           + ("" if args.no_plots else ", *.png") + ("" if args.no_vtk else ", solution.vtu") + ")")
     if not result.converged:

@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 
 from .results import read_history  # noqa: E402
 
-__all__ = ["plot_run", "plot_compare", "plot_solution", "plot_eta_map"]
+__all__ = ["plot_run", "plot_compare", "plot_solution", "plot_eta_map", "plot_mesh"]
 
 
 def _slope_line(ax, n, e, slope, label):
@@ -148,3 +148,23 @@ def plot_eta_map(estimate, out_file, title: str = "") -> Path:
     fig.savefig(out_file, dpi=120)
     plt.close(fig)
     return Path(out_file)
+
+
+def plot_mesh(disc, x, y, out_file, title: str = "") -> Path:
+    """The (adapted) mesh with the discrete contact nodes: where refinement went."""
+    mesh = disc.mesh
+    coords = np.array(mesh.ngmesh.Coordinates())[:, :2]
+    tris = mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
+    contact = disc.contact_points(x, y)
+    fig, ax = plt.subplots(figsize=(5.5, 5.2))
+    ax.triplot(coords[:, 0], coords[:, 1], tris, lw=0.2, color="k")
+    if len(contact):
+        ax.plot(contact[:, 0], contact[:, 1], "r.", ms=0.8, alpha=0.5, label="contact nodes")
+        ax.legend(loc="upper right", fontsize=7)
+    ax.set_aspect("equal")
+    ax.set_title(title or f"P{disc.order}: {mesh.ne} triangles, ndof {disc.ndof}")
+    fig.tight_layout()
+    out_file = Path(out_file)
+    fig.savefig(out_file, dpi=130)
+    plt.close(fig)
+    return out_file

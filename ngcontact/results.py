@@ -16,6 +16,7 @@ ndof                DOFs as counted in [CAMWA21]: fem (fields + 1) x interior no
                     dg (fields + 1) x cell nodes
 ndof_sc             hho: size of the statically condensed system (face unknowns)
 nodes               interior Lagrange nodes per field
+marked              --adaptive: elements marked on the previous level (0 on level 0)
 err_energy          (sum_a mu_a ||grad(u_a - u_ah)||^2)^(1/2)      [exact only]
 rate_energy         log(e_{j-1}/e_j) / log(h_{j-1}/h_j)              [exact only]
 err_max_nodal       max over nodes |u_a(x_l) - u_ah(x_l)|           [exact only]
@@ -26,10 +27,21 @@ res_final           final ||Phi||/||F||
 active_nodes        nodes in the discrete contact set (gap <= X3)
 linear_size         largest linear system solved in a Newton step (reduced SPD /
                     condensed face system / full system)
+gmres_its           --newton exact-gmres|inexact|adaptive: GMRES iterations, all Newton steps
+                    (adaptive: including the nu look-ahead steps of sigma_alg)
+gmres_max_step      largest number of GMRES iterations in one Newton step
+gmres_first_step    GMRES iterations of the first Newton step
+n_estimates         estimator evaluations inside the Newton loop (adaptive: every nu GMRES its)
+time_estimate_newton_s  time of those evaluations (inside time_solve_s, not in time_linear_s)
+eta_disc_final, eta_lin_final, eta_alg_final
+                    error components of the last iterate ([JSC20] Corollary; adaptive
+                    mode, or inexact/exact-gmres with estimator logging)
 gap_min             min over nodes of X1 - X2 (or X - psi): >= -tol at convergence
 lam_min             min of X3: >= -tol at convergence
 product_max         max |gap * X3|
-time_mesh_s         building/refining the mesh
+time_mesh_s         building/refining the mesh (--adaptive: copy + bisection giving T_j)
+time_mark_s         --adaptive: marking on T_{j-1} (Doerfler / maximum)
+time_prolong_s      --adaptive: warm start, previous solution prolongated to T_j
 time_assembly_s     spaces, Lagrange nodes, matrices, loads
 time_solve_s        semismooth Newton (all iterations)
 time_linear_s       reduced SPD systems (assembly + factorization + solve)
@@ -48,13 +60,18 @@ eta_nonc2_seed      seed's C_{Omega,mu} ||lam_h^neg|| (diagnostic, not in eta)
 time_estimate_s     flux reconstruction + estimators
 i_eff               eta / err_energy                                  [exact only]
 rate_eta            log(eta_{j-1}/eta_j) / log(h_{j-1}/h_j)
+                    (--adaptive: rate_energy and rate_eta use ndof^{-1/2} in place of h)
 time_total_s        whole level
 time_cum_s          cumulated over levels 0..j
 ==================  ===========================================================
 
 newton.csv: one row per (level, iteration k) with res, res_lin, res_c,
 n_active, n_changed, step, time_linear, time_step (see
-:class:`ngcontact.newton.IterationRecord`).
+:class:`ngcontact.newton.IterationRecord`); with --newton other than exact also
+gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
+3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),
+eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu
+(:class:`ngcontact.inexact.InexactIterationRecord`).
 """
 from __future__ import annotations
 
@@ -73,9 +90,11 @@ from pathlib import Path
 __all__ = ["write_run", "read_history", "markdown_table", "HISTORY_COLUMNS"]
 
 HISTORY_COLUMNS = [
-    "level", "nelem", "h", "ndof", "ndof_sc", "nodes", "err_energy", "rate_energy", "err_max_nodal",
-    "err_jump", "newton_its", "newton_converged", "res_final", "active_nodes", "linear_size", "gap_min", "lam_min",
-    "product_max", "time_mesh_s", "time_assembly_s", "time_solve_s", "time_linear_s",
+    "level", "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "err_energy", "rate_energy", "err_max_nodal",
+    "err_jump", "newton_its", "newton_converged", "res_final", "active_nodes", "linear_size",
+    "gmres_its", "gmres_max_step", "gmres_first_step", "n_estimates", "time_estimate_newton_s",
+    "eta_disc_final", "eta_lin_final", "eta_alg_final", "gap_min", "lam_min",
+    "product_max", "time_mesh_s", "time_mark_s", "time_assembly_s", "time_prolong_s", "time_solve_s", "time_linear_s",
     "time_condense_s", "time_post_s",
     "eta", "rate_eta", "i_eff", "eta_seed", "eta_F", "eta_R", "eta_FR", "eta_C", "eta_nonc1",
     "eta_nonc2", "eta_nonc3", "eta_quad", "eta_bc", "eps_w", "eta_nonc2_seed", "time_estimate_s",
@@ -161,6 +180,7 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
             "options": asdict(result.options),
             "converged": result.converged,
             "failures": result.failures,
+            **({"stop_reason": result.stop_reason} if getattr(result, "stop_reason", None) else {}),
             "final": {k: _fmt(v) for k, v in result.rows[-1].items()} if result.rows else {},
             "versions": versions(),
             "git_revision": git_revision(),
@@ -175,6 +195,10 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
                 from .plotting import plot_solution
 
                 plot_solution(result.discretization, result.x, result.y, tmp / "solution.png")
+                if getattr(result.options, "adaptive", False):
+                    from .plotting import plot_mesh
+
+                    plot_mesh(result.discretization, result.x, result.y, tmp / "mesh.png")
             if result.estimate is not None:
                 from .plotting import plot_eta_map
 

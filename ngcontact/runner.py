@@ -13,10 +13,14 @@ import numpy as np
 
 from .discretizations import DISCRETIZATIONS
 from .linalg import SOLVERS
-from .newton import NewtonOptions, semismooth_newton
+from .newton import NewtonOptions, decoupled_newton, semismooth_newton
 from .rates import rates
 
 __all__ = ["RunOptions", "RunResult", "run_scene", "ESTIMATED"]
+
+#: Newton drivers: exact = direct solves (ngcontact.newton); the others GMRES + ILU (ngcontact.inexact);
+#: 'exact-gmres' is the "exact" mode of [JSC20] (GMRES to 2e-12)
+NEWTON_MODES = ("exact", "exact-gmres", "inexact", "adaptive")
 
 #: discretizations with an a posteriori estimator (:mod:`ngcontact.estimators`)
 ESTIMATED = ("fem",)
@@ -36,6 +40,18 @@ class RunOptions:
     solver: str = "sparsecholesky"
     condense: bool = True  # hho: static condensation inside every Newton step
     estimate: bool = False  # a posteriori estimators per level (fem)
+    decouple: bool = False  # two membranes, K = blockdiag(S, alpha S): Newton on w = u1 - u2 only (newton.decoupled_newton)
+    newton: str = "exact"  # 'exact' (direct solves) | 'exact-gmres' | 'inexact' | 'adaptive' (ngcontact.inexact)
+    gamma_alg: float = 0.3  # adaptive: stop GMRES when eta_alg <= gamma_alg max(eta_disc, eta_lin)
+    gamma_lin: float = 0.3  # adaptive: stop Newton when eta_lin <= gamma_lin eta_disc
+    nu: int = 10  # GMRES iterations between estimator evaluations
+    adaptive: bool = False  # solve -> estimate -> mark -> refine (ngcontact.adaptive) instead of uniform levels
+    marking: str = "doerfler"  # adaptive: 'doerfler' (bulk, theta) or 'max' (eta_K >= theta max eta_K)
+    theta: float = 0.5  # adaptive: marking parameter in (0, 1]
+    max_ndof: Optional[int] = None  # adaptive: do not solve on a mesh with more DOFs
+    target_eta: Optional[float] = None  # adaptive: stop when eta <= target_eta
+    max_time: Optional[float] = None  # adaptive: stop when the cumulative wall time [s] exceeds it
+    max_levels: int = 30  # adaptive: at most this many levels
 
     def __post_init__(self):
         def bad(name, want):
@@ -63,6 +79,33 @@ class RunOptions:
             bad("estimate", "True or False")
         if self.estimate and self.disc not in ESTIMATED:
             bad("estimate", f"False for disc {self.disc!r} (estimators exist for {sorted(ESTIMATED)})")
+        if self.newton not in NEWTON_MODES:
+            bad("newton", f"one of {NEWTON_MODES}")
+        if self.newton != "exact" and self.disc != "fem":
+            bad("newton", f"'exact' for disc {self.disc!r} (inexact Newton is implemented for fem)")
+        for name in ("gamma_alg", "gamma_lin"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
+                bad(name, "a positive number")
+        if isinstance(self.nu, bool) or not isinstance(self.nu, int) or self.nu < 1:
+            bad("nu", "a positive integer")
+        if not isinstance(self.adaptive, bool):
+            bad("adaptive", "True or False")
+        if self.adaptive and self.disc not in ESTIMATED:
+            bad("adaptive", f"False for disc {self.disc!r} (estimators exist for {sorted(ESTIMATED)})")
+        if self.marking not in ("doerfler", "max"):
+            bad("marking", "'doerfler' or 'max'")
+        if isinstance(self.theta, bool) or not isinstance(self.theta, (int, float)) or not 0 < self.theta <= 1:
+            bad("theta", "a number in (0, 1]")
+        if self.max_ndof is not None and (isinstance(self.max_ndof, bool) or not isinstance(self.max_ndof, int)
+                                          or self.max_ndof < 1):
+            bad("max_ndof", "a positive integer (or None)")
+        for name in ("target_eta", "max_time"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf")):
+                bad(name, "a positive number (or None)")
+        if isinstance(self.max_levels, bool) or not isinstance(self.max_levels, int) or not 1 <= self.max_levels <= 200:
+            bad("max_levels", "an integer between 1 and 200")
 
     @classmethod
     def for_scene(cls, scene, **given) -> "RunOptions":
@@ -88,11 +131,16 @@ class RunResult:
     estimate: object = None  # Estimate of the final level (when options.estimate)
     converged: bool = True
     failures: List[str] = field(default_factory=list)
+    stop_reason: Optional[str] = None  # adaptive runs: why the loop ended
 
 
 def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], None]] = None,
               newton_callback=None) -> RunResult:
     """Solve ``scene`` on levels 0..options.levels-1 of its domain."""
+    if options.adaptive:  # solve -> estimate -> mark -> refine
+        from .adaptive import run_adaptive
+
+        return run_adaptive(scene, options, progress=progress, newton_callback=newton_callback)
     say = progress or (lambda msg: None)
     problem = scene.problem
     Disc = DISCRETIZATIONS[options.disc]
@@ -117,7 +165,15 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
                 newton_callback(level, rec)
 
         t1 = time.perf_counter()
-        sol = semismooth_newton(disc.system, x0, y0, nopts, callback=cb)
+        if options.newton == "exact":
+            sol = (decoupled_newton if options.decouple else semismooth_newton)(disc.system, x0, y0, nopts, callback=cb)
+        else:
+            from .inexact import InexactOptions, inexact_semismooth_newton
+
+            iopts = InexactOptions(mode=options.newton.replace("exact-gmres", "exact"), cfun=options.cfun,
+                                   tol=options.tol, maxit=options.maxit, gamma_alg=options.gamma_alg,
+                                   gamma_lin=options.gamma_lin, nu=options.nu)
+            sol = inexact_semismooth_newton(disc.system, x0, y0, iopts, callback=cb, disc=disc)
         t2 = time.perf_counter()
         errs = disc.errors(sol.x, sol.y)
         comp = disc.complementarity(sol.x, sol.y)
@@ -147,6 +203,12 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             "res_final": sol.history[-1].res,
             "active_nodes": sol.history[-1].n_active,
             "linear_size": max((r.linear_size for r in sol.history), default=0),
+            **({"gmres_its": sol.gmres_total, "gmres_max_step": max(r.gmres_its for r in sol.history),
+                "gmres_first_step": sol.history[1].gmres_its if len(sol.history) > 1 else 0,
+                "n_estimates": sum(r.n_estimates for r in sol.history),
+                "time_estimate_newton_s": sol.time_estimate,
+                "eta_disc_final": sol.history[-1].eta_disc, "eta_lin_final": sol.history[-1].eta_lin,
+                "eta_alg_final": sol.history[-1].eta_alg} if options.newton != "exact" else {}),
             **comp,
             "time_mesh_s": t_mesh,
             "time_assembly_s": disc.time_assembly,

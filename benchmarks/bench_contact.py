@@ -1,0 +1,134 @@
+"""Benchmarks of issue 7: nested Newton cost vs one unconstrained linear solve.
+
+    python -m benchmarks.bench_contact [--quick] [--out results/bench]
+
+Cases (each in its own subprocess so that peak memory is per case):
+  ex9      PETSc SNES ex9 obstacle problem, P1, N = 16 * 2^j up to 1024 (65k/261k/1.05M unknowns);
+           max nodal errors must match PETSc (9.340e-5 / 1.918e-5 / 6.59e-6).
+  test1    [CAMWA21] test 1 on criss-cross meshes with n0 = 11, 7 levels: ~0.99M nodes per membrane,
+           coupled reduced Newton, and 'test1-decoupled' (s/w change of variables).
+Columns (one row per finest level N of a nested run from the coarsest mesh):
+  t_total_s    whole nested run up to that level (meshes, assembly, prolongation, Newton, errors)
+  t_solve_s    contact solve: t_total minus the finest level's mesh + assembly and minus all
+               error evaluations (what an unconstrained solve on the same matrix needs too is excluded)
+  t_linear_s   one unconstrained solve K x = F of the finest level, same solver (factor + solve)
+  ratio        t_solve_s / t_linear_s
+  newton_its   Newton iterations per level, coarse to fine
+  peak_rss_mb  resource.getrusage peak resident memory of the case's process
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import resource
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+PETSC_S = {256: 0.45, 512: 1.0, 1024: 7.1}  # REFERENCE.md, vinewtonrsls + GAMG, this machine class
+PETSC_ERR = {256: 9.340e-5, 512: 1.918e-5, 1024: 6.59e-6}
+
+
+def run_case(case: str, quick: bool) -> list:
+    import numpy as np
+    from ngsolve import SetNumThreads
+
+    from ngcontact import CrissCrossSquare
+    from ngcontact.runner import RunOptions, run_scene
+    from ngcontact.scenes import load_scene
+
+    SetNumThreads(2)
+    if case == "ex9":
+        scene = load_scene("ex9_obstacle")
+        levels, report = (6, (4, 5)) if quick else (7, (4, 5, 6))
+        opts = RunOptions(levels=levels)
+    else:
+        scene = load_scene("test1")
+        scene = replace(scene, problem=replace(scene.problem, domain=CrissCrossSquare(n0=11)))
+        levels = 5 if quick else 7
+        report = (levels - 1,)
+        opts = RunOptions(levels=levels, decouple=case == "test1-decoupled")
+    res = run_scene(scene, opts, progress=lambda m: print(f"[{case}] {m}", flush=True))
+    rows = []
+    for L in report:
+        r = res.rows[: L + 1]
+        fin = r[-1]
+        t_total = fin["time_cum_s"]
+        t_solve = t_total - fin["time_mesh_s"] - fin["time_assembly_s"] - sum(q["time_post_s"] for q in r)
+        # one unconstrained solve on this level's matrix (rebuild the level: the run keeps only the last)
+        if L == levels - 1:
+            disc = res.discretization
+        else:
+            from ngcontact.discretizations.fem import FEMDiscretization
+
+            mesh = list(scene.problem.domain.meshes(L + 1))[-1]
+            disc = FEMDiscretization(scene.problem, mesh, order=1)
+        t0 = time.perf_counter()
+        xs = disc.system.unconstrained_solve()
+        t_lin = time.perf_counter() - t0
+        assert np.all(np.isfinite(xs))
+        N = 16 * 2 ** L if case == "ex9" else 11 * 2 ** L
+        row = {"case": case, "N": N, "nodes": disc.n_interior, "unknowns": disc.system.n,
+               "err_max_nodal": fin.get("err_max_nodal"), "err_energy": fin.get("err_energy"),
+               "rate_energy": fin.get("rate_energy"),
+               "err_petsc": PETSC_ERR.get(N) if case == "ex9" else None,
+               "newton_its": "/".join(str(q["newton_its"]) for q in r),
+               "converged": all(q["newton_converged"] for q in r),
+               "t_total_s": t_total, "t_solve_s": t_solve, "t_linear_s": t_lin, "ratio": t_solve / t_lin,
+               "t_finest_newton_s": fin["time_solve_s"], "t_finest_assembly_s": fin["time_assembly_s"],
+               "petsc_s": PETSC_S.get(N) if case == "ex9" else None,
+               "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+        rows.append(row)
+    return rows
+
+
+def _fmt(v):
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.3e}" if abs(v) < 1e-2 else f"{v:.2f}"
+    return str(v)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="results/bench")
+    ap.add_argument("--quick", action="store_true", help="smaller sizes (smoke test)")
+    ap.add_argument("--case", help=argparse.SUPPRESS)  # worker mode
+    a = ap.parse_args(argv)
+    if a.case:
+        print("ROWS " + json.dumps(run_case(a.case, a.quick)), flush=True)
+        return
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for case in ("ex9", "test1", "test1-decoupled"):
+        cmd = [sys.executable, "-m", "benchmarks.bench_contact", "--case", case] + (["--quick"] if a.quick else [])
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        sys.stdout.write(p.stdout.replace("ROWS ", "# rows: ") if p.returncode else
+                         "".join(l + "\n" for l in p.stdout.splitlines() if not l.startswith("ROWS ")))
+        if p.returncode:
+            sys.stderr.write(p.stderr)
+            raise SystemExit(f"bench case {case} failed")
+        case_rows = json.loads(next(l for l in p.stdout.splitlines() if l.startswith("ROWS "))[5:])
+        with open(out / f"{case}.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(case_rows[0]))
+            w.writeheader()
+            w.writerows(case_rows)
+        rows += case_rows
+    cols = ["case", "N", "unknowns", "err_max_nodal", "err_petsc", "err_energy", "newton_its", "t_solve_s",
+            "t_linear_s", "ratio", "t_total_s", "petsc_s", "peak_rss_mb"]
+    lines = ["# Benchmarks (issue 7)", "",
+             "Generated by `make bench` (`python -m benchmarks.bench_contact`); definitions in "
+             "`benchmarks/bench_contact.py`. P1, nested Newton-min, sparsecholesky, 2 threads.", "",
+             "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(_fmt(r[c]) for c in cols) + " |" for r in rows]
+    (out / "BENCH.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Studies run by make targets (each writes under results/)."""

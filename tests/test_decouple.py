@@ -1,0 +1,51 @@
+"""The s = u1 + alpha u2, w = u1 - u2 decoupling gives the coupled discrete solution."""
+import numpy as np
+import pytest
+from ngsolve import x, y
+
+from ngcontact import CrissCrossSquare, TwoMembraneProblem
+from ngcontact.discretizations.fem import FEMDiscretization
+from ngcontact.newton import NewtonOptions, decoupled_newton, semismooth_newton
+
+
+def _disc(mu2, order=1, level=2):
+    problem = TwoMembraneProblem(domain=CrissCrossSquare(n0=4), f1=-30 * (x - 0.3) * (y - 0.6) - 8.0, f2=6.0,
+                                 g1=0.05, g2=-0.05, mu1=2.0, mu2=mu2)
+    mesh = list(problem.domain.meshes(level + 1))[-1]
+    return FEMDiscretization(problem, mesh, order=order)
+
+
+@pytest.mark.parametrize("mu2,order", [(2.0, 1), (0.5, 1), (0.5, 2)])
+def test_decoupled_newton_gives_the_coupled_solution(mu2, order):
+    d = _disc(mu2, order)
+    s = d.system
+    split = s.membrane_split()
+    assert split is not None and split[1] == pytest.approx(mu2 / 2.0)
+    x0, y0 = d.initial_guess()
+    a = semismooth_newton(s, x0, y0, NewtonOptions())
+    b = decoupled_newton(s, x0, y0, NewtonOptions())
+    assert a.converged and b.converged
+    assert 0 < (a.y > 1e-8).sum() < s.m  # partial contact
+    np.testing.assert_allclose(b.x, a.x, atol=1e-11 * np.abs(a.x).max())
+    np.testing.assert_allclose(b.y, a.y, atol=1e-9 * np.abs(a.y).max())
+    assert s.gap(b.x).min() >= -1e-12 and b.y.min() >= -1e-12
+
+
+def test_no_split_for_the_obstacle_problem_or_coupled_blocks():
+    d = _disc(1.0)
+    s = d.system
+    from ngcontact.complementarity import ComplementaritySystem
+    import scipy.sparse as sp
+
+    m = s.m
+    K = s.K.tolil()
+    K[0, m] = K[m, 0] = -1e-3  # couple the fields: no longer block diagonal
+    coupled = ComplementaritySystem(K.tocsr(), s.F, s.up, s.lo, s.b, s.D)
+    assert coupled.membrane_split() is None
+    obstacle = ComplementaritySystem(s.K[:m, :m], s.F[:m], np.arange(m), -np.ones(m, dtype=np.int64),
+                                     np.zeros(m), s.D)
+    assert obstacle.membrane_split() is None
+    # fallback: decoupled_newton then is the coupled Newton
+    x0, y0 = np.zeros(coupled.n), np.zeros(m)
+    r = decoupled_newton(coupled, x0, y0)
+    assert r.converged and np.allclose(r.x, semismooth_newton(coupled, x0, y0).x)
