@@ -78,7 +78,9 @@ report: $(STAMP)
 	$(PY) -m ngcontact.report report results/sweep/runs results/REPORT.md results/report
 
 ## bench: issue 7 benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
-##        -> results/bench/*.csv + results/bench/BENCH.md.  Not part of `make test`.
+##        -> results/bench/*.csv + results/bench/BENCH.md; estimator vs Newton time -> results/bench/ESTIMATE.md.
+##        Not part of `make test`.
 .PHONY: bench
 bench: $(STAMP)
 	$(PY) -m benchmarks.bench_contact --out results/bench
+	$(PY) -m benchmarks.bench_estimate --out results/bench
