@@ -40,6 +40,7 @@ from .domains import mesh_size
 from .marking import mark
 from .newton import NewtonOptions, semismooth_newton
 from .rates import rates
+from .domains import DIRICHLET
 
 __all__ = ["run_adaptive", "refine", "interior_nodes"]
 
@@ -59,7 +60,7 @@ def refine(mesh, marked) -> ngsolve.Mesh:
 
 def interior_nodes(mesh, order: int) -> int:
     """Interior Lagrange nodes of P_order on ``mesh`` (= free H1 dofs; cheap, no assembly)."""
-    return int(sum(ngsolve.H1(mesh, order=order, dirichlet=".*").FreeDofs()))
+    return int(sum(ngsolve.H1(mesh, order=order, dirichlet=DIRICHLET).FreeDofs()))
 
 
 def _solve(disc, x0, y0, options, cb):

@@ -4,8 +4,9 @@ A domain knows nothing about finite element spaces: it produces the meshes
 T_0, T_1, ... where T_j is obtained from the coarse mesh T_0 by j uniform
 ("red") refinements, every triangle being split into four by its edge
 midpoints; on curved boundaries the new points are placed on the curve.
-Every boundary segment carries a name, so ``dirichlet=".*"`` selects the
-whole boundary.
+Every boundary segment carries a name, so ``dirichlet=DIRICHLET`` selects the
+whole boundary; an internal curve named ``interface`` (mesh lines fitted to a
+data discontinuity, e.g. ``UnitDisk(interface_radius=...)``) is not part of it.
 
 Structured squares are built level by level with numpy and netgen's
 vectorized ``AddPoints`` / ``AddElements``; domains given by a netgen
@@ -20,17 +21,22 @@ import numbers
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Optional
 
 import netgen.meshing as ngm
 import numpy as np
 import ngsolve
 from netgen.geom2d import SplineGeometry
 
-__all__ = ["Domain", "CrissCrossSquare", "StructuredSquare", "GeometryDomain",
+__all__ = ["DIRICHLET", "Domain", "CrissCrossSquare", "StructuredSquare", "GeometryDomain",
            "UnitDisk", "LShape", "MeshFileDomain", "mesh_size"]
 
 _SIDES = ("bottom", "right", "top", "left")
+
+#: NGSolve ``dirichlet=`` regex of the outer boundary: every named boundary segment except internal
+#: interfaces (std::regex, full match)
+DIRICHLET = "(?!interface$).*"
+INTERFACE = "interface"
 
 
 def mesh_size(mesh) -> float:
@@ -346,6 +352,7 @@ class UnitDisk(GeometryDomain):
     curved: bool = field(default=True, init=False, repr=False)
     radius: float = 1.0
     center: tuple = (0.0, 0.0)
+    interface_radius: Optional[float] = None  # mesh lines on the concentric circle of this radius
 
     def __post_init__(self):
         _check_positive(self, "radius")
@@ -353,15 +360,25 @@ class UnitDisk(GeometryDomain):
         if not (isinstance(c, (tuple, list, np.ndarray)) and len(c) == 2 and all(map(_is_real, c))):
             _fail(self, "center", c, "a pair of finite numbers")
         object.__setattr__(self, "center", (float(c[0]), float(c[1])))
+        ri = self.interface_radius
+        if ri is not None and not (_is_real(ri) and 0 < ri < self.radius):
+            _fail(self, "interface_radius", ri, f"a number in (0, radius = {self.radius:g}) or None")
         geo = SplineGeometry()
-        geo.AddCircle(self.center, self.radius, bc="boundary")
+        if ri is None:
+            geo.AddCircle(self.center, self.radius, bc="boundary")
+        else:  # two subdomains; the inner circle is an internal curve named INTERFACE (not Dirichlet)
+            geo.AddCircle(self.center, self.radius, bc="boundary", leftdomain=2, rightdomain=0)
+            geo.AddCircle(self.center, float(ri), bc=INTERFACE, leftdomain=1, rightdomain=2)
+            geo.SetMaterial(1, "inner")
+            geo.SetMaterial(2, "outer")
         object.__setattr__(self, "geometry", geo)
         super().__post_init__()
 
     @property
     def name(self) -> str:
         (cx, cy), r = self.center, self.radius
-        return f"disk r={r:g} c=({cx:g},{cy:g}) (maxh={self.maxh:g})"
+        fit = "" if self.interface_radius is None else f", mesh fitted to r={self.interface_radius:.4g}"
+        return f"disk r={r:g} c=({cx:g},{cy:g}){fit} (maxh={self.maxh:g})"
 
 
 @dataclass(frozen=True)

@@ -145,3 +145,31 @@ def test_lshape_and_mesh_file(tmp_path):
 def test_bad_arguments(make, field):
     with pytest.raises(ValueError, match=field):
         make()
+
+
+def test_disk_with_interface_fits_the_circle_and_keeps_it_out_of_the_dirichlet_boundary():
+    from ngcontact.domains import DIRICHLET
+
+    rho = 2 ** -0.5
+    d = UnitDisk(maxh=0.3, interface_radius=rho)
+    m = d.mesh(1)
+    assert set(m.GetBoundaries()) == {"boundary", "interface"}
+    X, _, S = arrays(m)
+    r = np.linalg.norm(X[np.unique(S)], axis=1)  # every segment vertex on one of the two circles
+    assert np.all(np.minimum(np.abs(r - 1.0), np.abs(r - rho)) < 1e-12)
+    V = H1(m, order=1, dirichlet=DIRICHLET)
+    on_outer = int(np.sum(np.abs(np.linalg.norm(X, axis=1) - 1.0) < 1e-12))
+    assert sum(V.FreeDofs()) == m.nv - on_outer
+    for bad in (0.0, 1.0, -0.5, float("nan")):
+        with pytest.raises(ValueError, match="interface_radius"):
+            UnitDisk(maxh=0.3, interface_radius=bad)
+
+
+def test_interface_meshes_are_rejected_by_hho_and_dg():
+    from ngcontact.discretizations import DISCRETIZATIONS
+    from ngcontact.scenes import load_scene
+
+    prob = load_scene("disk_fitted").problem
+    for disc in ("hho", "sipg"):
+        with pytest.raises(ValueError, match="fem only"):
+            DISCRETIZATIONS[disc](prob, prob.domain.mesh(0), order=1)

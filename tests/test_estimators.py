@@ -18,7 +18,8 @@ from ngcontact.scenes import load_scene
 
 # (scene, p) -> number of levels run (whole file < 60 s).  P1 on the squares needs T3 for the
 # Dirichlet-data correction to fade (I_eff(T2) = 1.31 / 1.39, I_eff(T3) = 1.21 / 1.27).
-LEVELS = {("test1", 1): 4, ("test1", 2): 3, ("test2", 1): 4, ("test2", 2): 3, ("disk", 1): 3, ("disk", 2): 3}
+LEVELS = {("test1", 1): 4, ("test1", 2): 3, ("test2", 1): 4, ("test2", 2): 3, ("disk", 1): 3, ("disk", 2): 3,
+          ("disk_fitted", 1): 3, ("disk_fitted", 2): 3}
 _CACHE = {}
 
 
@@ -43,8 +44,22 @@ def study(scene_name, p):
 
 CASES = sorted(LEVELS)
 
+#: disk on meshes fitted to r = 1/sqrt 2: the P2 error converges at the optimal O(h^2), the estimator
+#: only at ~O(h^1.5): eta_F (flux) and eta_nonc2 (negative part of lam_h) are dominated by the
+#: multiplier lam_h in the dual basis, whose O(1) error on the strip of elements along the free
+#: boundary is O(h^1.5) in H^-1; the energy error of u does not see it.
+P2_FITTED = ("estimator O(h^1.5) vs error O(h^2) on fitted meshes (lam_h at the free boundary); measured "
+             "I_eff 2.69, 3.31, 4.42 (levels 0-2), 6.07 (level 3)")
 
-@pytest.mark.parametrize("scene,p", CASES)
+
+#: the two structural checks below are exact on straight interior edges; disk_fitted at p = 2 has
+#: curved interior edges (the interface r = rho is curved with the mesh), where sigma . n is not a
+#: polynomial in the edge parameter and these L2 checks measure 1.5e-3 / 8e-7 (checked by the
+#: guaranteed-bound test instead)
+STRAIGHT_INTERIOR = [c for c in CASES if c != ("disk_fitted", 2)]
+
+
+@pytest.mark.parametrize("scene,p", STRAIGHT_INTERIOR)
 def test_equilibration(scene, p):
     """max_K ||Pi_q(f_a + s_a lam^_h - div sigma_ah)||_K / ||Pi_q(f_a + s_a lam^_h)|| <= 1e-10 on every level
     (moment sense: on the curved disk elements div sigma is not a mapped polynomial)."""
@@ -52,7 +67,7 @@ def test_equilibration(scene, p):
         assert max(v["max_K"] for v in row["eq"].values()) <= 1e-10, row["level"]
 
 
-@pytest.mark.parametrize("scene,p", CASES)
+@pytest.mark.parametrize("scene,p", STRAIGHT_INTERIOR)
 def test_normal_continuity(scene, p):
     """The sum of the patch fluxes is in H(div): relative normal jumps at round-off."""
     for row in study(scene, p):
@@ -75,6 +90,8 @@ def test_guaranteed_bound(scene, p):
     pytest.param("disk", 2, marks=pytest.mark.xfail(
         strict=True, reason="lam and f jump across r = 1/sqrt 2: eta_R (oscillation of f) alone is ~1.4 x error; "
         "measured I_eff 4.38, 4.26, 3.96 (levels 0-2), 3.99 (level 3)")),
+    ("disk_fitted", 1),
+    pytest.param("disk_fitted", 2, marks=pytest.mark.xfail(strict=True, reason=P2_FITTED)),
 ])
 def test_effectivity_on_finest_level(scene, p):
     """I_eff <= 1.3 on the finest level run (disk P1: published 1.034-1.038 [JSC20])."""
@@ -94,7 +111,8 @@ def test_disk_p1_effectivity_close_to_published():
         assert 1.0 <= row["est"].i_eff <= 1.10, (row["level"], row["est"].i_eff)
 
 
-@pytest.mark.parametrize("scene,p", CASES)
+@pytest.mark.parametrize("scene,p", [c if c != ("disk_fitted", 2) else pytest.param(
+    *c, marks=pytest.mark.xfail(strict=True, reason=P2_FITTED)) for c in CASES])
 def test_estimator_rate_matches_error_rate(scene, p):
     """eta converges at the error's rate (fitted over the last two levels run)."""
     rows = study(scene, p)
@@ -102,6 +120,15 @@ def test_estimator_rate_matches_error_rate(scene, p):
     rate_eta = fitted_rate(h, [r["est"].eta for r in rows], last=2)
     rate_err = fitted_rate(h, [r["est"].err_energy for r in rows], last=2)
     assert abs(rate_eta - rate_err) <= 0.3, (rate_eta, rate_err)
+
+
+def test_disk_fitted_p1_effectivity_on_every_level():
+    """Disk P1 on meshes fitted to the free boundary: 1 <= I_eff <= 1.10 on every level, [JSC20]: 1.034-1.038.
+
+    Measured 1.098, 1.070, 1.052 (levels 0-2; 360-6435 dofs), 1.038 (level 3, 26211 dofs).
+    """
+    for row in study("disk_fitted", 1):
+        assert 1.0 <= row["est"].i_eff <= 1.10, (row["level"], row["est"].i_eff)
 
 
 @pytest.mark.parametrize("p", [1, 2])

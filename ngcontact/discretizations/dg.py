@@ -66,6 +66,7 @@ from ngsolve import (VOL, BilinearForm, CoefficientFunction, GridFunction, Integ
 from ..linalg import ngsolve_coo
 from ..complementarity import ComplementaritySystem, StepInfo
 from ..lagrange import lattice
+from ..domains import INTERFACE
 
 __all__ = ["DGDiscretization", "SIPGDiscretization", "NIPGDiscretization", "IIPGDiscretization", "BrokenLagrange",
            "DGComplementaritySystem", "VARIANTS", "ngsolve_coo", "sparse_solve"]
@@ -486,6 +487,9 @@ class DGDiscretization:
             raise ValueError(f"order must be 1, 2, 3 or 4 for dg, got {order!r}")
         if variant not in VARIANTS:
             raise ValueError(f"variant must be one of {sorted(VARIANTS)}, got {variant!r}")
+        if INTERFACE in mesh.GetBoundaries():
+            raise ValueError("dg: meshes with an internal '{}' curve (e.g. UnitDisk(interface_radius=...)) "
+                             "are supported by disc fem only".format(INTERFACE))
         if getattr(problem, "kind", None) != "membranes":
             raise ValueError(f"dg supports the two-membrane problem only, got {type(problem).__name__}")
         c = self.default_penalty if penalty is None else float(penalty)

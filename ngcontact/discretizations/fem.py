@@ -28,6 +28,7 @@ from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integr
 from ..complementarity import ComplementaritySystem
 from ..lagrange import LagrangeNodes
 from ..problems import ProblemDataError, check_data_on_points, data_fields
+from ..domains import DIRICHLET
 
 __all__ = ["FEMDiscretization"]
 
@@ -62,7 +63,7 @@ class FEMDiscretization:
         self.problem, self.mesh, self.order, self.quad_bonus = problem, mesh, order, quad_bonus
         if getattr(problem.domain, "curved", False) and order > 1:
             mesh.Curve(order)
-        self.fes = fes = H1(mesh, order=order, dirichlet=".*")
+        self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
         self.nodes = nodes = LagrangeNodes.build(fes)
         free = np.array(list(fes.FreeDofs()), dtype=bool)
         self.interior = np.flatnonzero(free)

@@ -67,6 +67,7 @@ from ..complementarity import ComplementaritySystem, StepInfo
 from ..linalg import SPDSolver
 from ..linalg import ngsolve_coo
 from .dg import BrokenLagrange, _quadrature
+from ..domains import INTERFACE
 
 __all__ = ["HHODiscretization", "CondensedHHOSystem"]
 
@@ -167,6 +168,9 @@ class HHODiscretization:
             raise ValueError(f"order must be 1, 2, 3 or 4 for hho, got {order!r}")
         if getattr(problem, "kind", None) != "membranes":
             raise ValueError(f"hho supports the two-membrane problem only, got {type(problem).__name__}")
+        if INTERFACE in mesh.GetBoundaries():
+            raise ValueError("hho: meshes with an internal '{}' curve (e.g. UnitDisk(interface_radius=...)) "
+                             "are supported by disc fem only".format(INTERFACE))
         t0 = time.perf_counter()
         self.problem, self.mesh, self.order, self.condense = problem, mesh, order, bool(condense)
         self.quad_bonus, self.reconstruction = quad_bonus, reconstruction

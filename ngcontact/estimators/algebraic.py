@@ -51,6 +51,7 @@ import numpy as np
 from ngsolve import H1, GridFunction, LinearForm, TRIG, dx, grad
 
 from .flux import _vertex_moment_term, _vertex_rule, equilibrate
+from ..domains import DIRICHLET
 
 __all__ = ["algebraic_flux", "algebraic_correction_norm", "eta_alg_of"]
 
@@ -65,7 +66,7 @@ def _p1_data(disc):
     except TypeError:
         c = {}
     if "p1" not in c:
-        V1 = H1(disc.mesh, order=1, dirichlet=".*")
+        V1 = H1(disc.mesh, order=1, dirichlet=DIRICHLET)
         v = V1.TestFunction()
         free = np.array(list(V1.FreeDofs()), dtype=bool)
         rule = {TRIG: _vertex_rule()}

@@ -15,6 +15,7 @@ from ngsolve import (BilinearForm, FacetFESpace, GridFunction, IfPos, Integrate,
                      div, dx, specialcf)
 
 from .flux import FluxReconstruction, data_rules
+from ..domains import DIRICHLET
 
 __all__ = ["projected_source", "equilibration_defect", "normal_jump", "complementarity_report"]
 
@@ -91,7 +92,7 @@ def normal_jump(flux: FluxReconstruction) -> dict:
         field name -> ||[sigma . n]||_{interior edges} / (sum_K ||sigma . n||^2_dK)^(1/2).
     """
     mesh, q = flux.space.mesh, flux.order
-    F = FacetFESpace(mesh, order=q, dirichlet=".*")
+    F = FacetFESpace(mesh, order=q, dirichlet=DIRICHLET)
     u, v = F.TnT()
     n = specialcf.normal(2)
     # element_boundary counts each interior edge twice: M2 = 2 M_F there

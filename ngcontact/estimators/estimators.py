@@ -120,6 +120,7 @@ from ngsolve import (BND, H1, L2, SEGM, VOL, BilinearForm, CoefficientFunction, 
 
 from ..lagrange import lattice
 from .flux import FluxReconstruction, equilibrate, reconstruct_fluxes
+from ..domains import DIRICHLET
 
 __all__ = ["Estimate", "estimate", "friedrichs_constant", "element_diameters", "nonnegative_multiplier"]
 
@@ -330,7 +331,7 @@ class _P0Dual:
     def norm(self, rbar_values: np.ndarray) -> float:
         mesh = self.mesh
         if self._inv is None:
-            self.W = FESpace("nonconforming", mesh, dirichlet=".*")
+            self.W = FESpace("nonconforming", mesh, dirichlet=DIRICHLET)
             u, v = self.W.TnT()
             self._a = BilinearForm(grad(u) * grad(v) * dx).Assemble()
             self._inv = self._a.mat.Inverse(self.W.FreeDofs(), inverse="sparsecholesky")
@@ -359,7 +360,7 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int):
     """
     prob = disc.problem
     gs = (prob.g1, prob.g2) if prob.kind == "membranes" else (prob.g,)
-    V = H1(disc.mesh, order=k, dirichlet=".*")
+    V = H1(disc.mesh, order=k, dirichlet=DIRICHLET)
     ws = []
     for fd, g in zip(fields, gs):
         gg, gu = GridFunction(V), GridFunction(V)

@@ -80,6 +80,7 @@ from typing import List, Optional
 from ngsolve import (H1, TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv, IntegrationRule, L2, LinearForm,
                      TaskManager, Trace, div, dx, grad, specialcf, x, y)
 from ngsolve.comp import PatchwiseSolve
+from ..domains import DIRICHLET
 
 __all__ = ["FieldData", "FluxReconstruction", "field_data", "data_rules", "equilibrate", "multiplier_p1",
            "reconstruct_fluxes"]
@@ -248,7 +249,7 @@ def _mixed_patch_problem(mesh, q: int, regularization: float):
     """Hybridized broken RT_q x P_q x facet-P_q space and the patch bilinear form."""
     V = HDiv(mesh, order=q, RT=True, discontinuous=True)
     Q = L2(mesh, order=q)
-    F = FacetFESpace(mesh, order=q, dirichlet=".*")  # no flux condition on the Dirichlet boundary
+    F = FacetFESpace(mesh, order=q, dirichlet=DIRICHLET)  # no flux condition on the Dirichlet boundary
     X = V * Q * F
     (s, r, m), (tau, w, v) = X.TnT()
     n = specialcf.normal(2)
