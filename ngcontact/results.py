@@ -256,4 +256,25 @@ def markdown_table(run_dirs) -> str:
                       f"{r['time_total_s']:.2f}"]
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
+        if rows and "eta" in rows[0]:  # --estimate: the estimator and its parts per level
+            cols = [c for c in ESTIMATE_TABLE_COLUMNS if c in rows[0]]
+            out.append("| level | " + " | ".join(cols) + " |")
+            out.append("|" + "---|" * (len(cols) + 1))
+            for r in rows:
+                cells = [f"T{r['level']}"] + [_cell(r.get(c)) for c in cols]
+                out.append("| " + " | ".join(cells) + " |")
+            out.append("")
     return "\n".join(out)
+
+
+#: estimator columns of :func:`markdown_table` (those present in the run's history)
+ESTIMATE_TABLE_COLUMNS = ("err_energy", "eta", "i_eff", "rate_eta", "eta_F", "eta_R", "eta_C", "eta_nonc1",
+                          "eta_nonc2", "eta_nonc3", "eta_quad", "eta_bc", "eps_w", "time_solve_s", "time_estimate_s")
+
+
+def _cell(v) -> str:
+    if v is None or (isinstance(v, float) and v != v):
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.3f}" if 0.1 <= abs(v) < 100 else f"{v:.3e}"
+    return str(v)
