@@ -125,7 +125,7 @@ def test_estimator_rate_matches_error_rate(scene, p):
 def test_disk_fitted_p1_effectivity_on_every_level():
     """Disk P1 on meshes fitted to the free boundary: 1 <= I_eff <= 1.10 on every level, [JSC20]: 1.034-1.038.
 
-    Measured 1.098, 1.070, 1.052 (levels 0-2; 360-6435 dofs), 1.038 (level 3, 26211 dofs).
+    Measured 1.053, 1.041, 1.036 (levels 0-2; 360-6435 dofs), 1.034 (level 3, 26211 dofs).
     """
     for row in study("disk_fitted", 1):
         assert 1.0 <= row["est"].i_eff <= 1.10, (row["level"], row["est"].i_eff)
