@@ -80,7 +80,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
         rtol: float = 1e-12, maxiter: int = 60, deadline: Optional[float] = None) -> PCGResult:
     """Preconditioned conjugate gradients for SPD ``A`` with SPD preconditioner ``M(r) ~ A^{-1} r``.
 
-    Target: ``||b - A x|| <= max(rtol ||b||, 16 eps ||A||_inf ||x||)``; the
+    Target: ``||b - A x|| <= max(rtol ||b||, 4 eps ||A||_inf ||x||)``; the
     second term is the residual a backward-stable direct solver leaves, so
     an ill-conditioned system with a small right-hand side (where rtol
     ||b|| is below rounding level) still converges to direct-solver accuracy.
@@ -96,7 +96,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
     if bnorm == 0.0:
         return PCGResult(np.zeros_like(b), 0, True, 0.0)
     anorm = float(abs(A).sum(axis=1).max()) if A.shape[0] else 0.0
-    floor = 16 * np.finfo(float).eps * anorm
+    floor = 4 * np.finfo(float).eps * anorm
     tol = rtol * bnorm
     r = b - A @ x
     rnorm = float(np.linalg.norm(r))
