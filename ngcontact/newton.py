@@ -22,7 +22,7 @@ from typing import Callable, List, Optional
 import numpy as np
 
 from .cfunctions import get_cfunction
-from .complementarity import ComplementaritySystem
+from .complementarity import LINEAR_PATHS, ComplementaritySystem, FactorReuse
 from .linalg import SPDSolver
 
 __all__ = ["NewtonOptions", "IterationRecord", "NewtonResult", "semismooth_newton", "decoupled_newton"]
@@ -38,6 +38,7 @@ class NewtonOptions:
     line_search: Optional[bool] = None  # default: on for 'fb', off for 'min'
     armijo: float = 1e-4
     min_step: float = 2.0 ** -30
+    reuse_factorization: bool = True  # PCG with an earlier step's factorization when few rows changed (FactorReuse)
 
     def __post_init__(self):
         get_cfunction(self.cfun)
@@ -61,6 +62,8 @@ class IterationRecord:
     time_linear: float  # reduced system factorization + solve
     time_step: float  # whole iteration
     linear_size: int = 0  # unknowns of the linear system actually solved (reduced / condensed)
+    linear_path: int = 0  # index in complementarity.LINEAR_PATHS: 0 factorized, 1 PCG with a reused factorization, 2 PCG gave up
+    pcg_its: int = 0  # PCG iterations of this step (also those of a failed attempt)
 
 
 @dataclass
@@ -115,12 +118,19 @@ def semismooth_newton(
     if history[-1].res <= options.tol:
         return NewtonResult(x, y, True, "converged", 0, history)
 
+    # factorization reuse needs the generic reduced step (subclasses with their own newton_step: no)
+    reuse = None
+    if options.reuse_factorization and type(system).newton_step is ComplementaritySystem.newton_step:
+        reuse = FactorReuse(system)
     reason = f"maximum number of iterations ({options.maxit}) reached"
     for k in range(1, options.maxit + 1):
         t0 = time.perf_counter()
         g = system.gap(x)
         Ca, Cb = cf.jacobian(g, y)
-        x_full, y_full, info = system.newton_step(x, y, c, Ca, Cb)
+        if reuse is None:
+            x_full, y_full, info = system.newton_step(x, y, c, Ca, Cb)
+        else:
+            x_full, y_full, info = system.newton_step(x, y, c, Ca, Cb, reuse=reuse)
         step = 1.0
         if line_search:
             dx, dy = x_full - x, y_full - y
@@ -214,4 +224,6 @@ def _record(k, r, c, psi, scale, system, x, y, active_old, step, info, t0):
         time_linear=info.time_solve + info.time_assemble,
         time_step=time.perf_counter() - t0,
         linear_size=int(getattr(info, "reduced_size", 0)),
+        linear_path=LINEAR_PATHS.index(getattr(info, "path", "factor")),
+        pcg_its=int(getattr(info, "pcg_its", 0)),
     )

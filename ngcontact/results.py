@@ -66,8 +66,9 @@ time_cum_s          cumulated over levels 0..j
 ==================  ===========================================================
 
 newton.csv: one row per (level, iteration k) with res, res_lin, res_c,
-n_active, n_changed, step, time_linear, time_step (see
-:class:`ngcontact.newton.IterationRecord`); with --newton other than exact also
+n_active, n_changed, step, time_linear, time_step, linear_size, linear_path (0 fresh
+factorization, 1 PCG preconditioned by an earlier step's factorization, 2 PCG gave up and
+the step was factorized), pcg_its (see :class:`ngcontact.newton.IterationRecord`); with --newton other than exact also
 gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
 3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),
 eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu

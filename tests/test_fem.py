@@ -107,3 +107,24 @@ def test_obstacle_solution_stays_above_obstacle(solve_one):
     assert sol.converged
     assert disc.system.gap(sol.x).min() >= -1e-12
     assert sol.y.min() >= -1e-12
+
+
+@pytest.mark.parametrize("name", ["ex9_obstacle", "test1"])
+def test_nested_p1_prolongation_equals_the_point_search(name, monkeypatch):
+    """P1 on uniformly refined straight meshes: vertex / edge-midpoint lookup, no point search."""
+    import ngcontact.discretizations.fem as fem
+    from ngcontact.newton import semismooth_newton
+
+    scene = load_scene(name)
+    coarse_mesh, fine_mesh = list(scene.problem.domain.meshes(3))[1:]
+    coarse, fine = FEMDiscretization(scene.problem, coarse_mesh), FEMDiscretization(scene.problem, fine_mesh)
+    sol = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess))
+    pts = fine.nodes.coords[fine.interior]
+    assert fem._nested_p1_values(coarse, pts, np.zeros((1, coarse.fes.ndof))) is not None  # fast path taken
+    x_fast, y_fast = fine.prolongate(coarse, sol.x, sol.y)
+    monkeypatch.setattr(fem, "_nested_p1_values", lambda *a: None)
+    x_search, y_search = fine.prolongate(coarse, sol.x, sol.y)
+    np.testing.assert_allclose(x_fast, x_search, atol=1e-13)
+    np.testing.assert_allclose(y_fast, y_search, atol=1e-13 * max(1.0, np.abs(y_search).max()))
+    # a point that is no coarse vertex or edge midpoint: fall back to the search
+    assert fem._nested_p1_values(coarse, pts[:1] + 1e-3 * coarse.problem.domain.h(1), np.zeros((1, coarse.fes.ndof))) is None

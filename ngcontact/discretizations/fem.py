@@ -141,8 +141,13 @@ class FEMDiscretization:
         """Nested iteration: interpolate a coarser level's solution at this level's nodes."""
         ni = self.n_interior
         pts = self.nodes.coords[self.interior]
-        gfs = previous.gridfunctions(x, y)
         names = ["u1", "u2"][: self.nfields] if self.nfields == 2 else ["u"]
+        if self.order == 1 and previous.order == 1:  # nested P1 meshes: no point search needed
+            nodal = previous.nodal_fields(x, y)
+            vals = _nested_p1_values(previous, pts, np.stack([nodal[n] for n in names + ["lam"]]))
+            if vals is not None:
+                return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1])
+        gfs = previous.gridfunctions(x, y)
         curved = getattr(previous.problem.domain, "curved", False) and previous.order > 1
         mp = None if curved else _locate(previous.mesh, pts)  # one point search for all fields
         x0 = np.concatenate([_evaluate_at(previous.mesh, gfs[n], pts, mp) for n in names])
@@ -222,6 +227,39 @@ class FEMDiscretization:
         g = self.system.gap(x)
         return {"gap_min": float(g.min(initial=0.0)), "lam_min": float(y.min(initial=0.0)),
                 "product_max": float(np.max(np.abs(g * y), initial=0.0))}
+
+
+def _nested_p1_values(previous, pts, values):
+    """P1 interpolant of nodal ``values`` (k x coarse nodes) of ``previous`` at ``pts``, or None.
+
+    A uniform (red) or bisection refinement of a straight-sided mesh puts
+    every new vertex at a coarse vertex or at the midpoint of a coarse edge,
+    where the P1 interpolant is the nodal value or the mean of the edge's two
+    nodal values.  Points are matched bitwise against those coordinates
+    (midpoints computed as 0.5 * (a + b), as the refinements do); if any
+    point does not match (curved boundary, another refinement), None and the
+    caller searches the points.  ex9, 1M points: ~0.5 s instead of ~8 s for
+    the TriFinder of :func:`_locate`.
+    """
+    P = previous.nodes.coords
+    T = previous.mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
+    if previous.fes.ndof != previous.mesh.nv or len(T) != previous.mesh.ne:
+        return None
+    E = np.unique(np.sort(T[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    cand = np.concatenate([P[:, 0] + 1j * P[:, 1], 0.5 * (P[E[:, 0], 0] + P[E[:, 1], 0])
+                           + 1j * (0.5 * (P[E[:, 0], 1] + P[E[:, 1], 1]))])
+    order = np.argsort(cand)
+    key = pts[:, 0] + 1j * pts[:, 1]
+    pos = np.minimum(np.searchsorted(cand[order], key), len(cand) - 1)
+    if not len(cand) or np.any(cand[order][pos] != key):
+        return None
+    idx = order[pos]
+    out = np.empty((len(values), len(pts)))
+    vert = idx < len(P)
+    out[:, vert] = values[:, idx[vert]]
+    e = E[idx[~vert] - len(P)]
+    out[:, ~vert] = 0.5 * (values[:, e[:, 0]] + values[:, e[:, 1]])
+    return out
 
 
 def _locate(mesh, pts):

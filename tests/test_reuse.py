@@ -1,0 +1,124 @@
+"""Newton steps solved by PCG with an earlier step's factorization (FactorReuse, issue 7)."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from ngcontact.complementarity import LINEAR_PATHS, ComplementaritySystem, FactorReuse
+from ngcontact.linalg import SPDSolver, pcg
+from ngcontact.newton import NewtonOptions, semismooth_newton
+
+
+def _laplace2d(n):
+    h = 1.0 / (n + 1)
+    T = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    I = sp.identity(n)
+    t = np.arange(1, n + 1) * h
+    X, Y = np.meshgrid(t, t, indexing="ij")
+    return (sp.kron(T, I) + sp.kron(I, T)).tocsr(), X.ravel(), Y.ravel(), h
+
+
+def _obstacle(n=24):
+    """-Δu = -8 above the obstacle psi = 0.2 - |x - c|^2 (contact in a disk around the centre)."""
+    K, X, Y, h = _laplace2d(n)
+    F = -8.0 * h * h * np.ones(K.shape[0])
+    psi = 0.2 - ((X - 0.5) ** 2 + (Y - 0.5) ** 2)
+    N = K.shape[0]
+    return ComplementaritySystem(K, F, np.arange(N), -np.ones(N, dtype=np.int64), psi, np.full(N, h * h))
+
+
+def _membranes(n=20):
+    """Two membranes, the first pushed down in the middle, with different tensions and a gap b(x)."""
+    K, X, Y, h = _laplace2d(n)
+    N = K.shape[0]
+    f1 = np.where((X - 0.5) ** 2 + (Y - 0.5) ** 2 < 0.1, -30.0, 5.0)
+    F = np.concatenate([f1 * h * h, 2.0 * h * h * np.ones(N)])
+    return ComplementaritySystem(sp.block_diag([K, 3 * K], format="csr"), F, np.arange(N), N + np.arange(N),
+                                 0.01 * X, np.full(N, h * h))
+
+
+def _iterates(system, x0, y0, reuse, cfun="min"):
+    """x^k, y^k for k = 1.. (each from a run stopped after k iterations) and the final history."""
+    full = semismooth_newton(system, x0, y0, NewtonOptions(cfun=cfun, reuse_factorization=reuse))
+    assert full.converged
+    out = []
+    for k in range(1, full.iterations + 1):
+        r = semismooth_newton(system, x0, y0, NewtonOptions(cfun=cfun, maxit=k, reuse_factorization=reuse))
+        out.append((r.x, r.y))
+    return out, full
+
+
+def _start(system, scale):
+    """A start near the solution (as in nested iteration): few active-set changes per step."""
+    ref = semismooth_newton(system, np.zeros(system.n), np.zeros(system.m), NewtonOptions(reuse_factorization=False))
+    rng = np.random.default_rng(1)
+    return ref.x + scale * rng.standard_normal(system.n) * np.abs(ref.x).max(), ref.y.copy()
+
+
+@pytest.mark.parametrize("make", [_obstacle, _membranes])
+def test_reuse_gives_the_iterates_of_fresh_factorizations_and_is_taken(make):
+    s = make()
+    x0, y0 = _start(s, 0.02)
+    fresh, rf = _iterates(s, x0, y0, reuse=False)
+    reused, rr = _iterates(s, x0, y0, reuse=True)
+    assert rf.iterations == rr.iterations >= 3
+    scale = np.abs(fresh[-1][0]).max()
+    for (xa, ya), (xb, yb) in zip(fresh, reused):
+        np.testing.assert_allclose(xb, xa, atol=1e-10 * scale, rtol=0)
+        np.testing.assert_allclose(yb, ya, atol=1e-10 * np.abs(fresh[-1][1]).max(), rtol=0)
+    paths = [LINEAR_PATHS[h.linear_path] for h in rr.history[1:]]
+    assert paths[0] == "factor" and "pcg" in paths
+    assert all(h.linear_path == 0 and h.pcg_its == 0 for h in rf.history[1:])
+    assert rr.history[-1].res <= 1e-13  # still a direct-solver-accurate final step
+    assert all(h.pcg_its <= 60 for h in rr.history)
+
+
+def test_reuse_with_fischer_burmeister_rows_changes_weights_and_stays_exact():
+    s = _obstacle(16)
+    x0, y0 = _start(s, 0.01)
+    a = semismooth_newton(s, x0, y0, NewtonOptions(cfun="fb", reuse_factorization=False))
+    b = semismooth_newton(s, x0, y0, NewtonOptions(cfun="fb", reuse_factorization=True))
+    assert a.converged and b.converged and a.iterations == b.iterations
+    np.testing.assert_allclose(b.x, a.x, atol=1e-10 * np.abs(a.x).max(), rtol=0)
+
+
+def test_too_many_changes_or_a_failed_pcg_refactorize():
+    s = _obstacle(16)
+    x0, y0 = _start(s, 0.02)
+    g = s.gap(x0)
+    C = np.minimum(g, y0)
+    Ca, Cb = (g <= y0).astype(float), (g > y0).astype(float)
+    lin = s.linearize(x0, y0, C, Ca, Cb)
+    reuse = FactorReuse(s, max_changed=0)
+    assert reuse.changed_rows(lin) is None  # nothing factorized yet
+    z1, path, _ = reuse.solve(lin)
+    assert path == "factor"
+    z2, path, its = reuse.solve(lin)  # same system: exact preconditioner
+    assert path == "pcg" and its <= 1
+    np.testing.assert_allclose(z2, z1, rtol=1e-12, atol=1e-14)
+    # flip one active row: more changes than allowed -> fresh factorization
+    Ca2, Cb2 = Ca.copy(), Cb.copy()
+    l = np.flatnonzero(Ca)[0]
+    Ca2[l], Cb2[l] = 0.0, 1.0
+    lin2 = s.linearize(x0, y0, C, Ca2, Cb2)
+    assert reuse.changed_rows(lin2) == 1
+    _, path, _ = reuse.solve(lin2)
+    assert path == "factor"
+    # a PCG capped at 0 iterations falls back, and the answer is the direct one
+    reuse = FactorReuse(s, maxiter=1, time_fraction=None)
+    reuse.solve(lin)
+    z, path, its = reuse.solve(lin2)
+    assert path == "pcg-failed" and its == 1
+    np.testing.assert_allclose(z, SPDSolver(lin2.A).solve(lin2.b), rtol=1e-10)
+
+
+def test_pcg_converges_on_the_true_residual():
+    K, *_ = _laplace2d(12)
+    b = np.random.default_rng(0).standard_normal(K.shape[0])
+    d = K.diagonal()
+    r = pcg(K, b, lambda v: v / d, rtol=1e-12, maxiter=500)
+    assert r.converged and np.linalg.norm(b - K @ r.x) <= 1e-12 * np.linalg.norm(b)
+    exact = SPDSolver(K)
+    r = pcg(K, b, exact.solve, rtol=1e-12)
+    assert r.converged and r.iterations <= 1
+    r = pcg(K, b, lambda v: v / d, rtol=1e-12, maxiter=3)
+    assert not r.converged and r.iterations == 3
