@@ -53,6 +53,9 @@ def _build_parser():
                    help="hho: solve the full system instead of the statically condensed face system")
     r.add_argument("--estimate", action="store_true",
                    help="a posteriori estimators per level (fem): eta, components, I_eff, eta_K maps")
+    r.add_argument("--decouple", action="store_true",
+                   help="two membranes with mu1, mu2 constant (fem): Newton on w = u1 - u2 only, one Poisson solve for "
+                        "mu1 u1 + mu2 u2 (same discrete solution; coupled Newton when the structure does not allow it)")
     r.add_argument("--newton", choices=["exact", "exact-gmres", "inexact", "adaptive"],
                    help="Newton linear solves: exact (direct, default), exact-gmres (GMRES+ILU to ||R||/||B|| <= 2e-12), "
                         "inexact (GMRES, forcing term), adaptive (GMRES, estimator-based stopping [JSC20]); fem only")
@@ -126,7 +129,8 @@ def _cmd_run(args, argv) -> int:
     given = dict(order=args.order, levels=args.levels, disc=args.disc, cfun=args.cfun, start=args.start,
                  tol=args.tol, maxit=args.maxit, solver=args.solver,
                  condense=False if args.no_condense else None, estimate=True if args.estimate else None,
-                 newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu)
+                 newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu,
+                 decouple=True if args.decouple else None)
     adaptive_opts = dict(marking=args.marking, theta=args.theta, max_ndof=args.max_ndof, target_eta=args.target_eta,
                          max_time=args.max_time, max_levels=args.max_levels)
     if not args.adaptive and any(v is not None for v in adaptive_opts.values()):

@@ -115,3 +115,17 @@ def test_list_shows_bundled_scenes(capsys):
     out = capsys.readouterr().out
     for name in ["test1", "test2", "disk", "ex9_obstacle"]:
         assert name in out
+
+
+def test_decouple_flag_gives_the_coupled_errors(tmp_path):
+    """--decouple (Newton on w = u1 - u2) reaches the same discrete solution as the coupled Newton."""
+    from ngcontact.results import read_history
+
+    for flag, name in (([], "coupled"), (["--decouple"], "decoupled")):
+        assert main(["run", "test1", "--levels", "2", "--order", "2", "--no-vtk", "--no-plots", "-q",
+                     "--out", str(tmp_path / name)] + flag) == 0
+    a, b = (read_history(tmp_path / n / "history.csv") for n in ("coupled", "decoupled"))
+    for ra, rb in zip(a, b):
+        assert abs(ra["err_energy"] - rb["err_energy"]) <= 1e-10 * ra["err_energy"]
+    s = json.loads((tmp_path / "decoupled" / "summary.json").read_text())
+    assert s["options"]["decouple"] is True
