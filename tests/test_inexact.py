@@ -116,7 +116,9 @@ def test_adaptive_rules_trigger_as_specified_with_synthetic_estimators(disk):
         calls.append(comp)
         return comp
 
-    opts = InexactOptions(mode="adaptive", gamma_alg=0.3, gamma_lin=0.3, nu=5)
+    # a weaker ILU than the default so that GMRES on this small case runs long enough for several
+    # estimator evaluations per step (with ILU(1e-5, fill 8) it reaches its tolerance before the rule)
+    opts = InexactOptions(mode="adaptive", gamma_alg=0.3, gamma_lin=0.3, nu=5, ilu_drop_tol=1e-4, ilu_fill=2.0)
     recs = []
 
     def cb(rec):
