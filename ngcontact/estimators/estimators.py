@@ -472,40 +472,45 @@ def concentrated_multiplier(qa: QuadratureArrays, lam_vals, gap_vals, h, C_mu: f
     W = qa.W
     area = W.sum(axis=1)
     m = (W * lam_vals).sum(axis=1) / area
-    cands = [lam_vals]
+    ne = lam_vals.shape[0]
+    lam_t = np.array(lam_vals, dtype=float)
+    loc2 = np.zeros(ne)
+    # elements with m_K = 0 carry lam^ = 0 (lam^ >= 0): every candidate is 0 there and adds nothing
+    # to either sum of the objective, so the search runs over the elements with m_K > 0 only
+    active = np.flatnonzero(m > 0)
+    if not len(active):
+        return lam_t, loc2
+    Wa, La, Ga, ma, areaa, ha = W[active], lam_vals[active], gap_vals[active], m[active], area[active], h[active]
+    cands = [La]
     for k in exponents:
         for i in range(6):  # vertex i: b_i^k; edge opposite to vertex i - 3: (1 - b_{i-3})^k
             b = qa.bary[i] ** k if i < 3 else (1.0 - qa.bary[i - 3]) ** k
-            mean_b = (W * b[None, :]).sum(axis=1) / area
-            cands.append(m[:, None] * b[None, :] / mean_b[:, None])
-    C = np.array([(W * c * gap_vals).sum(axis=1) for c in cands])             # (lam~, g)_K
-    X = np.array([(h / math.pi) ** 2 * (W * (lam_vals - c) ** 2).sum(axis=1) for c in cands])  # defects^2
+            mean_b = (Wa * b[None, :]).sum(axis=1) / areaa
+            cands.append(ma[:, None] * b[None, :] / mean_b[:, None])
+    C = np.array([(Wa * c * Ga).sum(axis=1) for c in cands])             # (lam~, g)_K
+    X = np.array([(ha / math.pi) ** 2 * (Wa * (La - c) ** 2).sum(axis=1) for c in cands])  # defects^2
+    cols = np.arange(len(active))
 
     def objective(idx):
-        loc = X[idx, np.arange(len(idx))]
-        return (scale + C_mu * math.sqrt(loc.sum())) ** 2 + 2.0 * C[idx, np.arange(len(idx))].sum()
+        return (scale + C_mu * math.sqrt(X[idx, cols].sum())) ** 2 + 2.0 * C[idx, cols].sum()
 
-    ne = lam_vals.shape[0]
-    best = np.zeros(ne, dtype=np.int64)
+    best = np.zeros(len(active), dtype=np.int64)
     best_val = objective(best)
-    active = np.flatnonzero(m > 0)
-    if len(active):
-        # Lagrangian sweep over the price t of the squared defect: per element argmin 2 C + t X
-        # (the Pareto front of (sum X, sum C)), keeping the t with the smallest objective
-        Xs = X[:, active]
-        Cs = C[:, active]
-        ref = max(scale, np.finfo(float).tiny)
-        for t in np.logspace(-3, 6, 46) * C_mu / ref * np.abs(C).max() / max(Xs[Xs > 0].max(initial=1e-300), 1e-300):
-            idx = best.copy()
-            idx[active] = np.argmin(2.0 * Cs + t * Xs, axis=0)
-            val = objective(idx)
-            if val < best_val:
-                best, best_val = idx, val
-    lam_t = cands[0].copy()
+    # Lagrangian sweep over the price t of the squared defect: per element argmin 2 C + t X
+    # (the Pareto front of (sum X, sum C)), keeping the t with the smallest objective
+    ref = max(scale, np.finfo(float).tiny)
+    for t in np.logspace(-3, 6, 46) * C_mu / ref * np.abs(C).max() / max(X[X > 0].max(initial=1e-300), 1e-300):
+        idx = np.argmin(2.0 * C + t * X, axis=0)
+        val = objective(idx)
+        if val < best_val:
+            best, best_val = idx, val
+    chosen = np.array(La)
     for j in range(1, len(cands)):
         sel = best == j
-        lam_t[sel] = cands[j][sel]
-    return lam_t, X[best, np.arange(ne)]
+        chosen[sel] = cands[j][sel]
+    lam_t[active] = chosen
+    loc2[active] = X[best, cols]
+    return lam_t, loc2
 
 
 # ----------------------------------------------------------------- estimate
