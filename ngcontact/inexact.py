@@ -64,7 +64,7 @@ import numpy as np
 from .cfunctions import get_cfunction
 from .complementarity import ComplementaritySystem, LinearizedStep
 from .krylov import ILU, KrylovState, gmres
-from .newton import IterationRecord, NewtonResult
+from .newton import IterationRecord, NewtonResult, armijo_backtracking
 
 __all__ = ["MODES", "InexactOptions", "InexactIterationRecord", "InexactResult", "EstimatorRecord",
            "inexact_semismooth_newton", "stop_linear", "stop_newton", "algebraic_residual", "rhs_norm"]
@@ -361,13 +361,8 @@ def inexact_semismooth_newton(
         xp, yp, cp = x, y, c
         step = 1.0
         if line_search:
-            dxs, dys = x_full - x, y_full - y
-            while True:
-                xt, yt = x + step * dxs, y + step * dys
-                rt, ct, psit = merit(xt, yt)
-                if psit <= (1.0 - 2.0 * opt.armijo * step) * psi or step < opt.min_step:
-                    break
-                step *= 0.5
+            step, (xt, yt, rt, ct, psit) = armijo_backtracking(merit, x, y, x_full, y_full, psi,
+                                                               opt.armijo, opt.min_step)
             failed = step < opt.min_step
             x, y, r, c, psi = xt, yt, rt, ct, psit
         else:

@@ -25,7 +25,8 @@ from .cfunctions import get_cfunction
 from .complementarity import LINEAR_PATHS, ComplementaritySystem, FactorReuse
 from .linalg import SPDSolver
 
-__all__ = ["NewtonOptions", "IterationRecord", "NewtonResult", "semismooth_newton", "decoupled_newton"]
+__all__ = ["NewtonOptions", "IterationRecord", "NewtonResult", "semismooth_newton", "decoupled_newton",
+           "armijo_backtracking"]
 
 
 @dataclass(frozen=True)
@@ -133,13 +134,8 @@ def semismooth_newton(
             x_full, y_full, info = system.newton_step(x, y, c, Ca, Cb, reuse=reuse)
         step = 1.0
         if line_search:
-            dx, dy = x_full - x, y_full - y
-            while True:
-                xt, yt = x + step * dx, y + step * dy
-                rt, ct, psit = merit(xt, yt)
-                if psit <= (1.0 - 2.0 * options.armijo * step) * psi or step < options.min_step:
-                    break
-                step *= 0.5
+            step, (xt, yt, rt, ct, psit) = armijo_backtracking(merit, x, y, x_full, y_full, psi,
+                                                               options.armijo, options.min_step)
             if step < options.min_step:
                 reason = f"line search failed at iteration {k} (step < {options.min_step:.1e})"
                 x, y, r, c, psi = xt, yt, rt, ct, psit
@@ -162,6 +158,23 @@ def semismooth_newton(
         if rec.res <= options.tol:
             return NewtonResult(x, y, True, "converged", k, history)
     return NewtonResult(x, y, False, reason, len(history) - 1, history)
+
+
+def armijo_backtracking(merit, x, y, x_full, y_full, psi: float, armijo: float, min_step: float):
+    """Step t = 1, 1/2, 1/4, ... along (x_full - x, y_full - y) until the merit
+    psi = 1/2 ||Phi||^2 decreases by the Armijo factor (1 - 2 armijo t), or t < min_step.
+
+    ``merit(x, y) -> (r, c, psi)``.  Returns t and (x_t, y_t, r_t, c_t, psi_t) of the last
+    trial (the caller decides what t < min_step means).
+    """
+    dx, dy = x_full - x, y_full - y
+    step = 1.0
+    while True:
+        xt, yt = x + step * dx, y + step * dy
+        rt, ct, psit = merit(xt, yt)
+        if psit <= (1.0 - 2.0 * armijo * step) * psi or step < min_step:
+            return step, (xt, yt, rt, ct, psit)
+        step *= 0.5
 
 
 def decoupled_newton(

@@ -104,8 +104,8 @@ from ngsolve import (H1, L2, CoefficientFunction, GridFunction, IfPos, Integrate
                      div, dx, grad)
 
 from ..cfunctions import get_cfunction
-from .estimators import (QuadratureArrays, _P0Dual, _dirichlet_correction, _mean_term, concentrated_multiplier,
-                         element_diameters, friedrichs_constant, nonnegative_multiplier)
+from .estimators import (QuadratureArrays, _P0Dual, _corrected_fields, _dirichlet_lifting, _mean_term,
+                         concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
 from .flux import _vertex_moment_term, _vertex_rule, data_rules, equilibrate, field_data
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
@@ -393,21 +393,10 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         # Dirichlet correction: depends only on the boundary trace of u_h, fixed along the iterations
         key = ("bc", dirichlet_correction)
         if key not in cache:
-            if dirichlet_correction:
-                k = p + 2
-                cache[key] = _dirichlet_correction(disc, fields, k, k - 1 if dirichlet_correction == "fast" else k)
-            else:
-                cache[key] = ([None] * len(fields), 0.0, 0.0)
+            cache[key] = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
         ws, eta_bc, eps_w = cache[key]
         exact_bc = all(w is None for w in ws)
-        grads = [grad(fd.u) + grad(w) if w is not None else grad(fd.u) for fd, w in zip(fields, ws)]
-        vals = [fd.u + w if w is not None else fd.u for fd, w in zip(fields, ws)]
-        if prob.kind == "membranes":
-            gap, ggap = vals[0] - vals[1], grads[0] - grads[1]
-        else:
-            psi = prob.psi
-            from ngsolve import x as X_, y as Y_
-            gap, ggap = vals[0] - psi, grads[0] - CoefficientFunction((psi.Diff(X_), psi.Diff(Y_)))
+        vals, grads, gap, ggap = _corrected_fields(prob, fields, ws)
 
         # ------------------------------------------------------------ flux / residual (disc)
         eta_F = np.zeros((nf, mesh.ne))

@@ -126,7 +126,7 @@ from ngsolve import (BND, H1, L2, SEGM, VOL, BilinearForm, CoefficientFunction, 
                      Integrate, IntegrationRule, LinearForm, TaskManager, VectorL2, div, dx, grad, x, y)
 
 from ..lagrange import lattice
-from .flux import FluxReconstruction, equilibrate, reconstruct_fluxes
+from .flux import FluxReconstruction, reconstruct_fluxes
 from ..domains import DIRICHLET
 
 __all__ = ["Estimate", "estimate", "friedrichs_constant", "element_diameters", "nonnegative_multiplier"]
@@ -403,6 +403,25 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int):
     return ws, math.sqrt(max(bc2, 0.0)), math.sqrt(max(eps2, 0.0))
 
 
+def _dirichlet_lifting(disc, fields, p: int, mode):
+    """(ws, eta_bc, eps_w) of :func:`_dirichlet_correction` with w_h in P_{p+2}; ``mode``:
+    True (rho in curl P_{p+3}), "fast" (curl P_{p+2}) or False (no correction)."""
+    if not mode:
+        return [None] * len(fields), 0.0, 0.0
+    k = p + 2
+    return _dirichlet_correction(disc, fields, k, k - 1 if mode == "fast" else k)
+
+
+def _corrected_fields(prob, fields, ws):
+    """u~_h = u_h + w_h per field, their gradients, and the gap of u~_h (u~1 - u~2, or u~ - psi) with its gradient."""
+    grads = [grad(fd.u) + grad(w) if w is not None else grad(fd.u) for fd, w in zip(fields, ws)]
+    vals = [fd.u + w if w is not None else fd.u for fd, w in zip(fields, ws)]
+    if prob.kind == "membranes":
+        return vals, grads, vals[0] - vals[1], grads[0] - grads[1]
+    psi = prob.psi
+    return vals, grads, vals[0] - psi, grads[0] - CoefficientFunction((psi.Diff(x), psi.Diff(y)))
+
+
 # ------------------------------------------------------- contact multiplier lam~ (concentration)
 class QuadratureArrays:
     """Values of CoefficientFunctions at the points of one rule on every element, and the
@@ -571,18 +590,8 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     with TaskManager():
         area = ew(CoefficientFunction(1.0), dx)
         # corrected solution u~_h = u_h + w_h (exact Dirichlet trace)
-        if dirichlet_correction:
-            k = p + 2
-            ws, eta_bc, eps_w = _dirichlet_correction(disc, fields, k, k - 1 if dirichlet_correction == "fast" else k)
-        else:
-            ws, eta_bc, eps_w = [None] * len(fields), 0.0, 0.0
-        grads = [grad(fd.u) + grad(w) if w is not None else grad(fd.u) for fd, w in zip(fields, ws)]
-        vals = [fd.u + w if w is not None else fd.u for fd, w in zip(fields, ws)]
-        if prob.kind == "membranes":
-            gap, ggap = vals[0] - vals[1], grads[0] - grads[1]
-        else:
-            psi = prob.psi
-            gap, ggap = vals[0] - psi, grads[0] - CoefficientFunction((psi.Diff(x), psi.Diff(y)))
+        ws, eta_bc, eps_w = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
+        vals, grads, gap, ggap = _corrected_fields(prob, fields, ws)
 
         # flux and residual estimators, element means of the residual
         eta_F, eta_R = np.zeros((len(fields), mesh.ne)), np.zeros((len(fields), mesh.ne))
