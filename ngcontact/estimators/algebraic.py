@@ -44,27 +44,20 @@ formula of :mod:`.flux`).
 from __future__ import annotations
 
 import math
-import weakref
 from typing import List, Optional
 
 import numpy as np
 from ngsolve import H1, GridFunction, LinearForm, TRIG, dx, grad
 
-from .flux import _vertex_moment_term, _vertex_rule, equilibrate
+from .flux import _vertex_moment_term, _vertex_rule, disc_cache, equilibrate
 from ..domains import DIRICHLET
 
 __all__ = ["algebraic_flux", "algebraic_correction_norm", "eta_alg_of"]
 
 
-_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
 def _p1_data(disc):
     """(V1, test function, interior-vertex mask, (psi_a, 1) by the vertex rule, vertex rule), cached per disc."""
-    try:
-        c = _CACHE.setdefault(disc, {})
-    except TypeError:
-        c = {}
+    c = disc_cache(disc)
     if "p1" not in c:
         V1 = H1(disc.mesh, order=1, dirichlet=DIRICHLET)
         v = V1.TestFunction()

@@ -95,18 +95,18 @@ from __future__ import annotations
 import math
 import time
 import warnings
-import weakref
 from dataclasses import dataclass, field
 from typing import Callable, List, Optional, Sequence
 
 import numpy as np
-from ngsolve import (H1, L2, CoefficientFunction, GridFunction, IfPos, Integrate, LinearForm, TaskManager, TRIG,
+from ngsolve import (L2, CoefficientFunction, GridFunction, IfPos, Integrate, TaskManager, TRIG,
                      div, dx, grad)
 
 from ..cfunctions import get_cfunction
 from .estimators import (QuadratureArrays, _P0Dual, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
-from .flux import _vertex_moment_term, _vertex_rule, data_rules, equilibrate, field_data
+from .flux import (ContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules, disc_cache, equilibrate, field_data,
+                   vertex_moments)
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
            "newton_iterates", "plot_components_history", "ComponentsHistory"]
@@ -176,34 +176,9 @@ class Components:
 
 
 # ------------------------------------------------------------------ per-discretization cache
-_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-def _cache(disc) -> dict:
-    try:
-        return _CACHE.setdefault(disc, {})
-    except TypeError:  # not weak-referenceable: no cache
-        return {}
-
-
-def _vertex_moments(disc):
-    """(Psi, vol, V1): Psi[l, a] = psi_a(x_l) over interior Lagrange nodes l, vol_a = (psi_a, 1)
-    (FE mass rule), V1 = H1(order 1) (vertex a = dof a)."""
-    c = _cache(disc)
-    if "psi" not in c:
-        mesh = disc.mesh
-        V1 = H1(mesh, order=1)
-        Psi = disc.nodes.V[disc.interior][:, :mesh.nv].tocsr()  # NGSolve: vertex dof a = vertex a
-        v = V1.TestFunction()
-        with TaskManager():
-            vol = LinearForm(v * dx(intrules=data_rules(disc)["mass"])).Assemble().vec.FV().NumPy().copy()
-        c["psi"] = (Psi, vol, V1)
-    return c["psi"]
-
-
 def _p1_from_functional(disc, values: np.ndarray, name: str) -> GridFunction:
     """P1 function sum_a c_a psi_a with (., psi_a) = sum_l psi_a(x_l) values_l (module doc)."""
-    Psi, vol, V1 = _vertex_moments(disc)
+    Psi, vol, V1 = vertex_moments(disc)
     gf = GridFunction(V1, name=name)
     gf.vec.FV().NumPy()[:] = (Psi.T @ values) / vol
     return gf
@@ -347,29 +322,44 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
     fields = field_data(disc, gfs)
     D = disc.D
     yp, yn = np.maximum(y, 0.0), np.minimum(y, 0.0)
-    lam_p = make(disc, D * yp, "lam_pos")
-    lam_n = make(disc, D * yn, "lam_neg") if (yn < 0).any() else None
-    lam_hat = _gf_combination(lam_p, 1.0, lam_n, 1.0, "lam_hat")
-    lam_order = 1 if use_p1 else p
+    lam_order = 1
+    if p == 1:  # the lumped P1 multiplier, >= 0 for y >= 0
+        lam_p = _p1_from_functional(disc, D * yp, "lam_pos")
+        lam_n = _p1_from_functional(disc, D * yn, "lam_neg") if (yn < 0).any() else None
+        lam_hat = _gf_combination(lam_p, 1.0, lam_n, 1.0, "lam_hat")
+    else:  # contact-weighted elementwise P1 (weights from y+), one linear map for both parts
+        cmult = ContactMultiplier(disc, yp)
+        lam_p = cmult(D * yp, "lam_pos")
+        lam_n = cmult(D * yn, "lam_neg") if (yn < 0).any() else None
+        lam_hat = lam_p if lam_n is None else lam_p + lam_n
 
     # ---------------------------------------------------------------- sigma_disc
     curved = bool(getattr(prob.domain, "curved", False)) and p > 1
     fbonus = 4 if curved else 0
     rules = data_rules(disc)
-    if use_p1:
-        lam_dx = dx(intrules={TRIG: _vertex_rule()})
-    else:
-        lam_dx = dx(intrules=rules["mass"])
+    vertex_dx, mass_dx = dx(intrules={TRIG: _vertex_rule()}), dx(intrules=rules["mass"])
     sig_d, data = [], []
     t_flux = time.perf_counter()
     for a, fd in enumerate(fields):
-        # m_alpha = s_alpha lam^ - r^_alpha (one function of the multiplier's kind)
-        m = _gf_combination(lam_hat, float(fd.sign), r_hat[a] if r_hat else None, -1.0, f"m_{fd.name}")
+        # m_alpha = s_alpha lam^ - r^_alpha; P1 functions by the patch-constant vertex device
+        # (module doc of .flux), elementwise/dual ones exactly with the FE mass rule
+        r = r_hat[a] if r_hat else None
+        if p == 1 and use_p1:
+            m = _gf_combination(lam_hat, float(fd.sign), r, -1.0, f"m_{fd.name}")
+            vterm, mterm = _vertex_moment_term(mesh, m, q), None
+        else:
+            m = fd.sign * lam_hat if r is None else fd.sign * lam_hat - r
+            vterm = _vertex_moment_term(mesh, -r, q) if (r is not None and use_p1) else None
+            mterm = fd.sign * lam_hat if use_p1 else m
         data.append(m)
-        term = _vertex_moment_term(mesh, m, q) if use_p1 else (lambda w, m=m: m * w)
 
-        def source(w, fd=fd, term=term):
-            return -fd.f * w * dx(intrules=rules["load"]) - term(w) * lam_dx
+        def source(w, fd=fd, vterm=vterm, mterm=mterm):
+            out = -fd.f * w * dx(intrules=rules["load"])
+            if vterm is not None:
+                out += -vterm(w) * vertex_dx
+            if mterm is not None:
+                out += -mterm * w * mass_dx
+            return out
         sig_d.append(equilibrate(mesh, fd.u, fd.mu, q, source, bonus_intorder=fbonus,
                                  regularization=regularization, hessian=p > 1, name=f"sigma_disc_{fd.name}"))
     t_flux = time.perf_counter() - t_flux
@@ -380,7 +370,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
     h = element_diameters(mesh)
     C_F = friedrichs_constant(prob, mesh) if friedrichs is None else float(friedrichs)
     C_mu = math.sqrt(sum(1.0 / mu for mu in mus))
-    cache = _cache(disc)
+    cache = disc_cache(disc)
     dual = cache.setdefault("dual", _P0Dual(mesh))
 
     def ew(cf, dxx=dxq):
@@ -437,7 +427,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         eta_alg = alg_flux + alg_loc + alg_mean
 
         # ------------------------------------------------------------ multiplier defects (eta_nonc,2)
-        if use_p1:
+        if p == 1:
             lam_t = lam_p  # >= 0 (nonnegative vertex coefficients)
             nonc2_d = 0.0
         else:

@@ -7,9 +7,9 @@ estimate)"; [JSC20] Section 3; Ern-Vohralik SINUM 2015.
 Notation.  |||v|||^2 = sum_a mu_a ||grad v_a||^2; s_1 = +1, s_2 = -1 (obstacle
 s = +1), so that div(-mu_a grad u_a) = f_a + s_a lam.  From :mod:`.flux`:
 sigma_ah in RT_q(Omega) and the multiplier of the equilibration lam^_h
-(p <= 2: the P1 function with the hat moments of the discrete multiplier,
-p = 1: lam_h itself; p >= 3: the dual-basis lam_h), div sigma_ah =
-Pi_q f_a + s_a lam^_h.  lam~_h >= 0 is lam^_h made nonnegative (identical to
+(p = 1: lam_h itself; p >= 2: the contact-weighted elementwise-P1 function
+with the hat moments of the discrete multiplier, :class:`.flux.ContactMultiplier`),
+div sigma_ah = Pi_q f_a + s_a lam^_h.  lam~_h >= 0 is lam^_h made nonnegative (identical to
 lam^_h whenever X3 >= 0, i.e. at convergence; see :func:`nonnegative_multiplier`).
 u~_h = u_h + w_h is the discrete solution with corrected Dirichlet data
 (w_h = 0 for piecewise polynomial g, e.g. the disk test; "Dirichlet data"
@@ -535,7 +535,8 @@ def concentrated_multiplier(qa: QuadratureArrays, lam_vals, gap_vals, h, C_mu: f
 # ----------------------------------------------------------------- estimate
 def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, errors: bool = True,
              friedrichs: Optional[float] = None, flux_order: Optional[int] = None,
-             bonus_intorder: Optional[int] = None, dirichlet_correction=True, concentrate: bool = True) -> Estimate:
+             bonus_intorder: Optional[int] = None, dirichlet_correction=True, concentrate: bool = True,
+             multiplier: Optional[str] = None) -> Estimate:
     """A posteriori estimate of a conforming FE solution (formulas: module docstring).
 
     Parameters
@@ -560,6 +561,9 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
         cheaper, eps_w slightly larger: I_eff 1.24 instead of 1.21 on test 1,
         P1, T3); False assumes exact data (eta then is not guaranteed for
         non-polynomial g).
+    multiplier : {"contact", "p1", "dual"}, optional
+        lam^_h of the equilibration for p >= 2 (:func:`~.flux.reconstruct_fluxes`; default
+        "contact").
     concentrate : bool
         choose lam~ by :func:`concentrated_multiplier` (default; the P2 contact term on the
         disk / test 2 otherwise dominates: I_eff 4-5); False: lam~ = lam^ made nonnegative.
@@ -572,7 +576,7 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     mesh, p = disc.mesh, disc.order
     gfs = disc.gridfunctions(x_sol, y_sol)
     if flux is None:
-        flux = reconstruct_fluxes(disc, gfs=gfs, order=flux_order)
+        flux = reconstruct_fluxes(disc, y_sol=y_sol, gfs=gfs, order=flux_order, multiplier=multiplier)
     bonus = disc.quad_bonus + 4 if bonus_intorder is None else int(bonus_intorder)
     dxq = dx(bonus_intorder=bonus)
     prob, fields = disc.problem, flux.fields

@@ -28,7 +28,10 @@ the patches the multiplier becomes the P1 function
 
     lam^_h = sum_a c_a psi_a,     c_a = m_a / (psi_a, 1) >= 0 when X3 >= 0,
 
-(p = 1: lam^_h = lam_h exactly).  Then
+(p = 1: lam^_h = lam_h exactly; for p >= 2 this is ``multiplier="p1"``, the
+default there is the contact-weighted elementwise-P1 lam^_h of
+:class:`ContactMultiplier`, which keeps the jump of lam at the free boundary
+instead of smearing it, used in full by every patch).  Then
 
     div sigma_alpha_h = Pi_q f_alpha + s_alpha lam^_h      (equilibration, exact)
 
@@ -74,16 +77,19 @@ RT_1 gives I_eff 1.076 vs 1.40 for RT_0 (level 1).
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 from typing import List, Optional
 
-from ngsolve import (H1, TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv, IntegrationRule, L2, LinearForm,
-                     TaskManager, Trace, div, dx, grad, specialcf, x, y)
+import numpy as np
+
+from ngsolve import (H1, TRIG, BilinearForm, CoefficientFunction, FacetFESpace, GridFunction, HDiv,
+                     IntegrationRule, L2, LinearForm, TaskManager, Trace, div, dx, grad, specialcf, x, y)
 from ngsolve.comp import PatchwiseSolve
 from ..domains import DIRICHLET
 
-__all__ = ["FieldData", "FluxReconstruction", "field_data", "data_rules", "equilibrate", "multiplier_p1",
-           "reconstruct_fluxes"]
+__all__ = ["FieldData", "FluxReconstruction", "ContactMultiplier", "field_data", "data_rules", "equilibrate",
+           "multiplier_p1", "reconstruct_fluxes"]
 
 
 @dataclass
@@ -211,6 +217,106 @@ def multiplier_p1(disc, gfs: dict) -> GridFunction:
     return lam
 
 
+_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def disc_cache(disc) -> dict:
+    """Per-discretization cache (mesh-dependent objects reused along Newton iterations)."""
+    try:
+        return _CACHE.setdefault(disc, {})
+    except TypeError:  # not weak-referenceable: no cache
+        return {}
+
+
+def vertex_moments(disc):
+    """(Psi, vol, V1): Psi[l, a] = psi_a(x_l) over interior Lagrange nodes l, vol_a = (psi_a, 1)
+    (FE mass rule), V1 = H1(order 1) (vertex a = dof a).  For a functional R on the interior
+    Lagrange basis (R_l = (r, phi_l)), Psi^T R are its hat moments R(psi_a) (psi_a in P_p)."""
+    c = disc_cache(disc)
+    if "psi" not in c:
+        mesh = disc.mesh
+        V1 = H1(mesh, order=1)
+        Psi = disc.nodes.V[disc.interior][:, :mesh.nv].tocsr()  # NGSolve: vertex dof a = vertex a
+        v = V1.TestFunction()
+        with TaskManager():
+            vol = LinearForm(v * dx(intrules=data_rules(disc)["mass"])).Assemble().vec.FV().NumPy().copy()
+        c["psi"] = (Psi, vol, V1)
+    return c["psi"]
+
+
+class ContactMultiplier:
+    r"""lam^_h for p >= 2: the contact-weighted, elementwise-P1 function with the hat moments of the
+    discrete multiplier (module docstring of :mod:`.estimators`, "the multiplier lam^_h").
+
+    Any L2 function with the hat moments m_a = (lam_h, psi_a) of the discrete multiplier makes the
+    interior patches compatible.  The continuous P1 function with these moments smears the jump of
+    lam at the free boundary over one element layer on both sides (and under-/overshoots there),
+    which costs O(h^{3/2}) in eta_F against an O(h^2) P2 error (measured I_eff 2.7 -> 6.1 on the
+    disk with the interface fitted).  Instead we take the minimizer of sum_K w_K ||lam^||_K^2 under
+    the moment constraints of the interior vertices, with weights 1/w_K = 1 on *contact elements*
+    (all three vertices with c_a = m_a / (psi_a, 1) > tol max c), ``mixed`` on elements with some,
+    ``empty`` on elements with none.  The minimizer is lam^|_K = (1/w_K) nu|_K with nu in P1
+    solving the weighted mass system M_w nu = m (SPD; one sparse Cholesky); on a mesh fitted to
+    the contact boundary lam^ is then (up to the mixed weight) zero outside the contact set and
+    the smooth P1 fit of lam inside (disk, P2: I_eff 1.36, 1.15, 1.09, 1.05 on levels 0-3).
+
+    The weights are fixed by one multiplier (``y_marker``) and the map m -> lam^ is linear, so
+    the positive and negative parts of a Newton iterate's multiplier are mapped separately
+    (:func:`.components.estimate_components`).  lam^ is not nonnegative by construction (the
+    weighted mass inverse); :func:`.estimators.nonnegative_multiplier` takes care of that.
+    The patch source integrates lam^ psi_a w with the FE mass rule, as M_w is assembled, so the
+    moments are matched to round-off also on curved elements.
+
+    Parameters
+    ----------
+    disc : FEMDiscretization (p >= 2)
+    y_marker : ndarray
+        X3 (nonnegative part used) defining the contact elements.
+    mixed, empty : float
+        1/w_K on elements with some / no contact vertex (> 0: every interior vertex keeps a
+        positive-weight element, so the constraints are always solvable).
+    tol : float
+        relative threshold for c_a > 0.
+    """
+
+    def __init__(self, disc, y_marker, *, mixed: float = 1e-3, empty: float = 1e-6, tol: float = 1e-8):
+        mesh = disc.mesh
+        Psi, vol, V1 = vertex_moments(disc)
+        self.Psi, self.disc = Psi, disc
+        c = Psi.T @ (disc.D * np.maximum(np.asarray(y_marker, float), 0.0)) / vol
+        cmax = float(c.max(initial=0.0))
+        pos = c > tol * cmax if cmax > 0 else np.zeros(mesh.nv, bool)
+        k = pos[_element_vertices(disc)].sum(axis=1)
+        winv = np.where(k == 3, 1.0, np.where(k > 0, mixed, empty))
+        self.n_contact_elements = int((k == 3).sum())
+        P0 = L2(mesh, order=0)
+        self.weight = GridFunction(P0, name="contact_weight")
+        self.weight.vec.FV().NumPy()[:] = winv
+        self.V = H1(mesh, order=1, dirichlet=DIRICHLET)  # the interior vertices carry constraints
+        u, v = self.V.TnT()
+        with TaskManager():
+            a = BilinearForm(self.weight * u * v * dx(intrules=data_rules(disc)["mass"])).Assemble()
+            self._inv = a.mat.Inverse(self.V.FreeDofs(), inverse="sparsecholesky")
+        self._free = np.array(list(self.V.FreeDofs()), dtype=bool)
+
+    def __call__(self, functional: np.ndarray, name: str = "lam_hat") -> CoefficientFunction:
+        """lam^ for a functional on the interior Lagrange basis (e.g. D X3): (lam^, psi_a) = Psi^T values."""
+        m = self.Psi.T @ np.asarray(functional, float)
+        rhs = GridFunction(self.V)
+        rhs.vec.FV().NumPy()[:] = np.where(self._free, m, 0.0)
+        nu = GridFunction(self.V, name=name)
+        nu.vec.data = self._inv * rhs.vec
+        return self.weight * nu
+
+
+def _element_vertices(disc) -> np.ndarray:
+    """(ne, 3) vertex numbers of the elements (cached)."""
+    c = disc_cache(disc)
+    if "ev" not in c:
+        c["ev"] = disc.mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
+    return c["ev"]
+
+
 def _vertex_moment_term(mesh, lam, q: int):
     """w -> integrand whose vertex-rule integral is (psi_a lam(a), w)_K, w in P_q, q <= 2 (module doc)."""
     ngmesh = mesh.ngmesh
@@ -313,7 +419,7 @@ def equilibrate(mesh, u, mu: float, q: int, source=None, *, bonus_intorder: int 
 
 def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = None, order: Optional[int] = None,
                        regularization: float = 1e-12, bonus_intorder: Optional[int] = None,
-                       multiplier: str = "p1") -> FluxReconstruction:
+                       multiplier: Optional[str] = None) -> FluxReconstruction:
     """Equilibrated fluxes sigma_alpha_h of a conforming FE solution (module doc).
 
     Parameters
@@ -331,10 +437,12 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
     bonus_intorder : int, optional
         extra quadrature order of the flux terms (default 0 on straight
         meshes, 4 on curved ones where integrands are not polynomial).
-    multiplier : {"p1", "dual"}
-        multiplier of the patch data for p >= 2: the P1 function lam^_h
-        (default, nonnegative when X3 >= 0) or the dual-basis lam_h (always
-        used when q >= 3).
+    multiplier : {"contact", "p1", "dual"}, optional
+        multiplier of the patch data for p >= 2: the contact-weighted
+        elementwise-P1 lam^_h of :class:`ContactMultiplier` (default), the
+        continuous P1 function lam^_h with the same hat moments (q <= 2;
+        nonnegative when X3 >= 0, but smeared across the free boundary) or the
+        dual-basis lam_h.  p = 1: always lam_h (lumped).
 
     Returns
     -------
@@ -351,13 +459,22 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
     bonus = (4 if curved else 0) if bonus_intorder is None else int(bonus_intorder)
     rules = data_rules(disc)
     fields = field_data(disc, gfs)
-    if multiplier not in ("p1", "dual"):
-        raise ValueError(f"multiplier must be 'p1' or 'dual', got {multiplier!r}")
-    if q <= 2 and (multiplier == "p1" or p == 1):
+    multiplier = "contact" if multiplier is None else multiplier
+    if multiplier not in ("contact", "p1", "dual"):
+        raise ValueError(f"multiplier must be 'contact', 'p1' or 'dual', got {multiplier!r}")
+    if multiplier == "p1" and q > 2 and p > 1:
+        raise ValueError(f"multiplier 'p1' needs RT degree <= 2, got {q}")
+    lam_order = 1
+    if p == 1 or multiplier == "p1":
         lam = multiplier_p1(disc, gfs)
         lam_term, lam_dx = _vertex_moment_term(mesh, lam, q), dx(intrules={TRIG: _vertex_rule()})
-    else:  # dual-basis lam_h, exact product with the FE mass rule
-        lam = gfs["lam"]
+    else:  # lam^ (contact-weighted) or the dual-basis lam_h: exact product with the FE mass rule
+        if multiplier == "contact":
+            if y_sol is None:
+                raise ValueError("the contact-weighted multiplier needs y_sol (X3)")
+            lam = ContactMultiplier(disc, y_sol)(disc.D * np.asarray(y_sol, float))
+        else:
+            lam, lam_order = gfs["lam"], p
 
         def lam_term(w):
             return lam * w
@@ -371,4 +488,4 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
                                   regularization=regularization, hessian=p > 1, name=f"sigma_{fd.name}"))
     V = sigmas[0].space
     return FluxReconstruction(sigma=sigmas, fields=fields, lam=lam, order=q, space=V,
-                              time=time.perf_counter() - t0, lam_order=1 if lam is not gfs["lam"] or p == 1 else p)
+                              time=time.perf_counter() - t0, lam_order=lam_order)
