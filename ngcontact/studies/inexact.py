@@ -17,6 +17,9 @@ carry the counters):
   reference for the energy error;
 * P1, finest mesh: adaptive with (gamma_alg, gamma_lin) in {0.3, 0.03}^2;
 * P2: the same three modes on the P2 meshes;
+* P2 on the same meshes fitted to r = 1/sqrt 2 (``disk_fitted``): direct, inexact and adaptive
+  (on the unfitted meshes the jump of f inside elements makes the P2 estimator ~3.7 x the error,
+  so the adaptive stopping rules stop early; on the fitted ones I_eff is 1.05-1.15);
 * P1, the ~8k mesh: exact-gmres and inexact with the estimators evaluated after
   every Newton step (``log_estimators``) for the plot "estimators vs Newton
   iteration" (those evaluations are diagnostics, not part of the run time).
@@ -47,6 +50,8 @@ P1_MAXH = (0.06, 0.042, 0.03, 0.021, 0.0148)
 P2_MAXH = (0.06, 0.03, 0.0165)
 QUICK_P1, QUICK_P2 = (0.1, 0.07), (0.1,)
 GAMMAS = ((0.3, 0.3), (0.03, 0.3), (0.3, 0.03), (0.03, 0.03))
+#: modes run on the fitted P2 meshes (the accuracy check of the adaptive criteria with a sharp estimator)
+FITTED_MODES = ("exact", "inexact", "adaptive")
 
 #: [JSC20] disk test, REFERENCE.md ("~": read off plots)
 PUBLISHED = {
@@ -60,25 +65,28 @@ PUBLISHED = {
 }
 
 
-def _scene(maxh):
+def _scene(maxh, fitted=False):
+    """The disk test on a netgen mesh of size maxh; ``fitted``: the mesh has the circle r = 1/sqrt 2 (the
+    exact contact boundary, where f and lam jump) as an internal line (``cases/disk_fitted.py``)."""
     from ..domains import UnitDisk
     from ..scenes import Scene, load_scene
 
-    base = load_scene("disk")
-    problem = replace(base.problem, domain=UnitDisk(maxh=maxh))
-    return Scene(name=f"disk-h{maxh:g}", path=base.path, problem=problem, description=base.description,
+    base = load_scene("disk_fitted" if fitted else "disk")
+    domain = UnitDisk(maxh=maxh, interface_radius=1 / math.sqrt(2)) if fitted else UnitDisk(maxh=maxh)
+    problem = replace(base.problem, domain=domain)
+    return Scene(name=f"{base.name}-h{maxh:g}", path=base.path, problem=problem, description=base.description,
                  defaults={}, initial_guess=base.initial_guess)
 
 
-def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None):
+def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None, fitted=False):
     from ..results import write_run
     from ..runner import RunOptions, run_scene
 
-    name = tag or f"p{order}-h{maxh:g}-{newton}"
+    name = tag or f"p{order}{'f' if fitted else ''}-h{maxh:g}-{newton}"
     d = out / "runs" / name
     if (d / "summary.json").is_file():  # already done (re-running the study resumes)
         return d
-    scene = _scene(maxh)
+    scene = _scene(maxh, fitted)
     opts = RunOptions(order=order, levels=1, start="cold", newton=newton, gamma_alg=gamma_alg,
                       gamma_lin=gamma_lin, nu=10)
     t0 = time.perf_counter()
@@ -97,6 +105,8 @@ def _load(d):
     s = json.loads((d / "summary.json").read_text())
     row.update(newton=s["options"]["newton"], order=s["options"]["order"], gamma_alg=s["options"]["gamma_alg"],
                gamma_lin=s["options"]["gamma_lin"], converged=s["converged"], run=d.name)
+    if d.name.startswith("p2f-"):  # P2 on the fitted meshes: its own table ("order" key "2f")
+        row["order"] = "2f"
     with open(d / "newton.csv") as fh:
         row["iterations"] = list(csv.DictReader(fh))
     return row
@@ -194,11 +204,13 @@ def _tables(rows, logs, out):
          "algebraic flux (`ngcontact/estimators/algebraic.py`). GMRES counts are all iterations performed "
          "(adaptive: including the nu look-ahead iterations of the last estimator evaluation of each step); "
          "`accepted` sums the indices i of the accepted iterates X^{k,i}.", ""]
-    for order in (1, 2):
+    for order in (1, 2, "2f"):
         meshes = sorted({r["nelem"] for r in rows if r["order"] == order})
         if not meshes:
             continue
-        L += [f"## P{order}: Newton / GMRES iterations, energy error, time per mesh", "",
+        title = ("P2 on meshes fitted to the contact boundary r = 1/sqrt 2 (`disk_fitted`; the P2 estimator is "
+                 "sharp there: I_eff 1.05-1.15, `results/estimators/TABLES.md`)" if order == "2f" else f"P{order}")
+        L += [f"## {title}: Newton / GMRES iterations, energy error, time per mesh", "",
               "| elements | ndof | mode | Newton | GMRES total | GMRES accepted | GMRES 1st step | energy error "
               "| err / err(direct) | eta_disc | eta_lin | eta_alg | solve [s] | of which estimators [s] |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -225,7 +237,8 @@ def _tables(rows, logs, out):
         worst = max((abs(r["err_energy"] / next(b for b in rows if b["order"] == order and b["nelem"] == r["nelem"]
                                                   and b["newton"] == "exact")["err_energy"] - 1) for r in ad),
                     default=float("nan"))
-        L += [f"Adaptive vs direct energy error, P{order}: largest relative difference over the meshes "
+        L += [f"Adaptive vs direct energy error, {'P2 fitted' if order == '2f' else f'P{order}'}: largest "
+              "relative difference over the meshes "
               f"{100 * worst:.2f} % (acceptance: <= 5 %).", ""]
     # gamma sensitivity
     for order, ne in sorted({(r["order"], r["nelem"]) for r in rows if r["newton"] == "adaptive"
@@ -294,6 +307,7 @@ def _tables(rows, logs, out):
     expected = [f"p{o}-h{h:g}-{m}" for o, hs in ((1, P1_MAXH), (2, P2_MAXH)) for h in hs
                 for m in ("exact", "exact-gmres", "inexact", "adaptive")]
     expected += [f"p1-h{P1_MAXH[-1]:g}-adaptive-g{ga:g}-{gl:g}" for ga, gl in GAMMAS[1:]]
+    expected += [f"p2f-h{h:g}-{m}" for h in P2_MAXH for m in FITTED_MODES]
     missing = [n for n in expected if not (out / "runs" / n / "summary.json").is_file()]
     if missing:
         L += ["Runs of the full study missing from `runs/` (interrupted or not run): " + ", ".join(missing) + ".", ""]
@@ -337,6 +351,9 @@ def main(argv=None) -> int:
         for h in p2 if not args.p1_only else ():
             for mode in ("exact", "exact-gmres", "inexact", "adaptive"):
                 dirs.append(_run(out, 2, h, mode))
+        for h in p2 if not args.p1_only else ():
+            for mode in FITTED_MODES:
+                dirs.append(_run(out, 2, h, mode, fitted=True))
     rows = [_load(d) for d in dirs]
     with open(out / "all.csv", "w", newline="") as fh:
         keys = ["run", "order", "newton", "gamma_alg", "gamma_lin", "nelem", "ndof", "newton_its", "gmres_its",
