@@ -298,6 +298,10 @@ def _tables(rows, logs, out):
     L.append(f"| P2 Newton exact / inexact / adaptive, ~27k | 29 / 116 / 22 | {triple(2, 27000, 'newton_its')} |")
     L.append(f"| P2 total GMRES exact / inexact / adaptive, ~27k | 21000 / 7300 / 540 | "
              f"{triple(2, 27000, 'gmres_its')} |")
+    L.append(f"| P2 fitted mesh, Newton exact / inexact / adaptive, ~27k | 29 / 116 / 22 | "
+             f"{triple('2f', 27000, 'newton_its')} (exact-gmres not run) |")
+    L.append(f"| P2 fitted mesh, total GMRES exact / inexact / adaptive, ~27k | 21000 / 7300 / 540 | "
+             f"{triple('2f', 27000, 'gmres_its')} |")
     L.append("")
     for order, data in logs.items():
         ev = data.get("adaptive_estimates", [])
