@@ -50,10 +50,11 @@ s_h - u_h = (t, -(1 - t)) I_p(g_h^-), g_h^- the negative part of the NODAL gap; 
 of s_h is >= 0.  s~_h in K_g corrects the remaining pointwise negative part of the gap of
 s_h + w_h (w_h: Dirichlet-data correction of :mod:`.estimators`), s~_h - (s_h + w_h) =
 (t, -(1 - t)) (g_s)^-, g_s = gap(s_h + w_h) (in place of the seed's c_K bubble step, see
-:func:`admissible_correction` for the reason).  Multiplier: lam^_h = lam^(y) (the P1 moments
-function above, or the dual-basis lam_h for q >= 3) is split linearly,
-lam^(y) = lam^(y^+) + lam^(y^-); lam~_h >= 0 is lam^(y^+) (p <= 2, where it is already >= 0)
-or its minimal nonnegative modification (q >= 3, :func:`.estimators.nonnegative_multiplier`).
+:func:`admissible_correction` for the reason).  Multiplier: lam^_h = lam^(y) (p = 1: the P1 moments
+function above; p >= 2: the contact multiplier of :mod:`.flux`, a linear map of the moments once
+the contact elements are fixed from y^+) is split linearly, lam^(y) = lam^(y^+) + lam^(y^-);
+lam~_h >= 0 is lam^(y^+) where it is already >= 0 (p = 1, and p >= 2 with q <= 2) or its minimal
+nonnegative modification (q >= 3, :func:`.estimators.nonnegative_multiplier`).
 
     term (seed name)                                     component   zero at convergence?
     eta_F(sigma_disc), eta_R, eta_quad                   disc        no
@@ -105,7 +106,7 @@ from ngsolve import (L2, CoefficientFunction, GridFunction, IfPos, Integrate, Ta
 from ..cfunctions import get_cfunction
 from .estimators import (QuadratureArrays, _P0Dual, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
-from .flux import (ContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules, disc_cache, equilibrate, field_data,
+from .flux import (ContactMultiplier, PatchContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules, disc_cache, equilibrate, field_data,
                    vertex_moments)
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
@@ -327,8 +328,8 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         lam_p = _p1_from_functional(disc, D * yp, "lam_pos")
         lam_n = _p1_from_functional(disc, D * yn, "lam_neg") if (yn < 0).any() else None
         lam_hat = _gf_combination(lam_p, 1.0, lam_n, 1.0, "lam_hat")
-    else:  # contact-weighted elementwise P1 (weights from y+), one linear map for both parts
-        cmult = ContactMultiplier(disc, yp)
+    else:  # contact multiplier of .flux (marker from y+), one linear map for both parts
+        cmult = (PatchContactMultiplier if use_p1 else ContactMultiplier)(disc, yp)
         lam_p = cmult(D * yp, "lam_pos")
         lam_n = cmult(D * yn, "lam_neg") if (yn < 0).any() else None
         lam_hat = lam_p if lam_n is None else lam_p + lam_n
@@ -344,13 +345,14 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         # m_alpha = s_alpha lam^ - r^_alpha; P1 functions by the patch-constant vertex device
         # (module doc of .flux), elementwise/dual ones exactly with the FE mass rule
         r = r_hat[a] if r_hat else None
-        if p == 1 and use_p1:
+        if p == 1:
             m = _gf_combination(lam_hat, float(fd.sign), r, -1.0, f"m_{fd.name}")
-            vterm, mterm = _vertex_moment_term(mesh, m, q), None
         else:
             m = fd.sign * lam_hat if r is None else fd.sign * lam_hat - r
-            vterm = _vertex_moment_term(mesh, -r, q) if (r is not None and use_p1) else None
-            mterm = fd.sign * lam_hat if use_p1 else m
+        if use_p1:  # P1 / elementwise-P1 vertex functions: the patch-constant vertex device
+            vterm, mterm = _vertex_moment_term(mesh, m, q), None
+        else:  # q >= 3: exact products with the FE mass rule
+            vterm, mterm = None, m
         data.append(m)
 
         def source(w, fd=fd, vterm=vterm, mterm=mterm):

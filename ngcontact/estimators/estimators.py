@@ -7,8 +7,9 @@ estimate)"; [JSC20] Section 3; Ern-Vohralik SINUM 2015.
 Notation.  |||v|||^2 = sum_a mu_a ||grad v_a||^2; s_1 = +1, s_2 = -1 (obstacle
 s = +1), so that div(-mu_a grad u_a) = f_a + s_a lam.  From :mod:`.flux`:
 sigma_ah in RT_q(Omega) and the multiplier of the equilibration lam^_h
-(p = 1: lam_h itself; p >= 2: the contact-weighted elementwise-P1 function
-with the hat moments of the discrete multiplier, :class:`.flux.ContactMultiplier`),
+(p = 1: lam_h itself; p >= 2: an elementwise-P1 function with the hat moments
+of the discrete multiplier concentrated on the contact elements,
+:class:`.flux.PatchContactMultiplier` / :class:`.flux.ContactMultiplier`),
 div sigma_ah = Pi_q f_a + s_a lam^_h.  lam~_h >= 0 is lam^_h made nonnegative (identical to
 lam^_h whenever X3 >= 0, i.e. at convergence; see :func:`nonnegative_multiplier`).
 u~_h = u_h + w_h is the discrete solution with corrected Dirichlet data

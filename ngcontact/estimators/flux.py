@@ -28,10 +28,11 @@ the patches the multiplier becomes the P1 function
 
     lam^_h = sum_a c_a psi_a,     c_a = m_a / (psi_a, 1) >= 0 when X3 >= 0,
 
-(p = 1: lam^_h = lam_h exactly; for p >= 2 this is ``multiplier="p1"``, the
-default there is the contact-weighted elementwise-P1 lam^_h of
-:class:`ContactMultiplier`, which keeps the jump of lam at the free boundary
-instead of smearing it, used in full by every patch).  Then
+(p = 1: lam^_h = lam_h exactly; for p >= 2 this is ``multiplier="p1"``; the
+default there, ``"contact"``, keeps the jump of lam at the free boundary
+instead of smearing it: :class:`PatchContactMultiplier`, the patch constants
+put on the contact elements of the patch only, for q <= 2, and the
+contact-weighted L2 fit :class:`ContactMultiplier` for q >= 3).  Then
 
     div sigma_alpha_h = Pi_q f_alpha + s_alpha lam^_h      (equilibration, exact)
 
@@ -83,12 +84,12 @@ from typing import List, Optional
 
 import numpy as np
 
-from ngsolve import (H1, TRIG, BilinearForm, CoefficientFunction, FacetFESpace, GridFunction, HDiv,
+from ngsolve import (H1, TRIG, BilinearForm, CoefficientFunction, Discontinuous, FacetFESpace, GridFunction, HDiv,
                      IntegrationRule, L2, LinearForm, TaskManager, Trace, div, dx, grad, specialcf, x, y)
 from ngsolve.comp import PatchwiseSolve
 from ..domains import DIRICHLET
 
-__all__ = ["FieldData", "FluxReconstruction", "ContactMultiplier", "field_data", "data_rules", "equilibrate",
+__all__ = ["FieldData", "FluxReconstruction", "ContactMultiplier", "PatchContactMultiplier", "field_data", "data_rules", "equilibrate",
            "multiplier_p1", "reconstruct_fluxes"]
 
 
@@ -245,8 +246,9 @@ def vertex_moments(disc):
 
 
 class ContactMultiplier:
-    r"""lam^_h for p >= 2: the contact-weighted, elementwise-P1 function with the hat moments of the
-    discrete multiplier (module docstring of :mod:`.estimators`, "the multiplier lam^_h").
+    r"""lam^_h for p >= 2 and RT degree q >= 3 (where the vertex device of :class:`PatchContactMultiplier`
+    is not exact): the contact-weighted, elementwise-P1 function with the hat moments of the
+    discrete multiplier.
 
     Any L2 function with the hat moments m_a = (lam_h, psi_a) of the discrete multiplier makes the
     interior patches compatible.  The continuous P1 function with these moments smears the jump of
@@ -258,7 +260,9 @@ class ContactMultiplier:
     ``empty`` on elements with none.  The minimizer is lam^|_K = (1/w_K) nu|_K with nu in P1
     solving the weighted mass system M_w nu = m (SPD; one sparse Cholesky); on a mesh fitted to
     the contact boundary lam^ is then (up to the mixed weight) zero outside the contact set and
-    the smooth P1 fit of lam inside (disk, P2: I_eff 1.36, 1.15, 1.09, 1.05 on levels 0-3).
+    the smooth P1 fit of lam inside (disk, P2: I_eff 1.36, 1.15, 1.09, 1.05 on levels 0-3; P3: 2.2, 6.1,
+    18.5 on levels 0-2 against 27, 138, 447 with the dual-basis lam_h).  Where lam vanishes continuously
+    at the free boundary the fit has negative lobes (eta_nonc,2; test 1 P3 adaptive: I_eff ~2).
 
     The weights are fixed by one multiplier (``y_marker``) and the map m -> lam^ is linear, so
     the positive and negative parts of a Newton iterate's multiplier are mapped separately
@@ -307,6 +311,69 @@ class ContactMultiplier:
         nu = GridFunction(self.V, name=name)
         nu.vec.data = self._inv * rhs.vec
         return self.weight * nu
+
+
+class PatchContactMultiplier:
+    r"""lam^_h for p >= 2 and RT degree q <= 2: per-patch constants on the contact elements.
+
+    Patch a sees the source psi_a g_a with g_a >= 0 piecewise constant on the patch: on its
+    *contact elements* (all three vertices with c_b = m_b / (psi_b, 1) > tol max c, from the
+    multiplier ``y_marker``) g_a = m_a / (psi_a, 1)_{contact elements of the patch}, zero on the
+    other elements; a patch without contact elements uses the lumped constant m_a / (psi_a, 1) on
+    all its elements (the ``multiplier="p1"`` choice).  The patch moment (psi_a g_a, 1) is m_a
+    (compatibility, exact), and the multiplier equilibrated by sigma = sum_a sigma^a is
+
+        lam^_h = sum_a psi_a g_a,   lam^_h|_K = the P1 function with the vertex values g_a|_K,
+
+    elementwise P1, discontinuous across the boundary of the contact set and >= 0 whenever the
+    moments are (X3 >= 0): no nonnegativity defect (eta_nonc,2 = 0 at convergence), unlike the
+    weighted L2 fit of :class:`ContactMultiplier`, whose negative lobes next to a continuous
+    free boundary (test 1, L-shape) cost more than they gain.  On meshes fitted to a jump of
+    lam (disk) lam^ is zero outside the contact set and ~lam inside, where the continuous P1
+    function with the same moments smears the jump over two element layers.
+
+    The patch source uses the vertex-rule device of :func:`_vertex_moment_term` with the
+    elementwise function G = lam^_h (G|_K(a) = g_a|_K), exact for affine elements and q <= 2.
+
+    Parameters
+    ----------
+    disc : FEMDiscretization (p >= 2)
+    y_marker : ndarray
+        X3 (nonnegative part) defining the contact elements.
+    tol : float
+        relative threshold for c_b > 0.
+    """
+
+    def __init__(self, disc, y_marker, *, tol: float = 1e-8):
+        mesh = disc.mesh
+        Psi, vol, _ = vertex_moments(disc)
+        self.Psi, self.disc = Psi, disc
+        c = Psi.T @ (disc.D * np.maximum(np.asarray(y_marker, float), 0.0)) / vol
+        cmax = float(c.max(initial=0.0))
+        pos = c > tol * cmax if cmax > 0 else np.zeros(mesh.nv, bool)
+        ev = _element_vertices(disc)
+        contact = pos[ev].all(axis=1)
+        self.n_contact_elements = int(contact.sum())
+        self.V = Discontinuous(H1(mesh, order=1))  # dof 3K + i = value at vertex i of element K
+        c_ = disc_cache(disc)
+        if "vol_ka" not in c_:
+            with TaskManager():
+                c_["vol_ka"] = LinearForm(self.V.TestFunction() * dx(intrules=data_rules(disc)["mass"])) \
+                    .Assemble().vec.FV().NumPy().reshape(mesh.ne, 3).copy()
+        vol_ka = c_["vol_ka"]  # (psi_a, 1)_K
+        volC = np.bincount(ev[contact].ravel(), weights=vol_ka[contact].ravel(), minlength=mesh.nv)
+        has = volC > 0
+        # coefficient of m_a on the (K, i) entries: 1/volC_a on contact K, 0 on others; 1/vol_a if none
+        self._coef = np.where(has[ev], np.where(contact[:, None], 1.0 / np.where(has, volC, 1.0)[ev], 0.0),
+                              1.0 / vol[ev])
+        self._ev = ev
+
+    def __call__(self, functional: np.ndarray, name: str = "lam_hat") -> GridFunction:
+        """lam^ (elementwise P1) for a functional on the interior Lagrange basis (e.g. D X3)."""
+        m = self.Psi.T @ np.asarray(functional, float)
+        gf = GridFunction(self.V, name=name)
+        gf.vec.FV().NumPy()[:] = (self._coef * m[self._ev]).ravel()
+        return gf
 
 
 def _element_vertices(disc) -> np.ndarray:
@@ -438,11 +505,11 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
         extra quadrature order of the flux terms (default 0 on straight
         meshes, 4 on curved ones where integrands are not polynomial).
     multiplier : {"contact", "p1", "dual"}, optional
-        multiplier of the patch data for p >= 2: the contact-weighted
-        elementwise-P1 lam^_h of :class:`ContactMultiplier` (default), the
-        continuous P1 function lam^_h with the same hat moments (q <= 2;
-        nonnegative when X3 >= 0, but smeared across the free boundary) or the
-        dual-basis lam_h.  p = 1: always lam_h (lumped).
+        multiplier of the patch data for p >= 2: ``"contact"`` (default;
+        :class:`PatchContactMultiplier` for q <= 2, :class:`ContactMultiplier`
+        for q >= 3), the continuous P1 function lam^_h with the lumped patch
+        constants (q <= 2; nonnegative when X3 >= 0, but smeared across the
+        free boundary) or the dual-basis lam_h.  p = 1: always lam_h (lumped).
 
     Returns
     -------
@@ -465,13 +532,16 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
     if multiplier == "p1" and q > 2 and p > 1:
         raise ValueError(f"multiplier 'p1' needs RT degree <= 2, got {q}")
     lam_order = 1
-    if p == 1 or multiplier == "p1":
-        lam = multiplier_p1(disc, gfs)
+    if multiplier == "contact" and p > 1 and y_sol is None:
+        raise ValueError("the contact multiplier needs y_sol (X3)")
+    if p == 1 or multiplier == "p1" or (multiplier == "contact" and q <= 2):
+        if p == 1 or multiplier == "p1":
+            lam = multiplier_p1(disc, gfs)
+        else:
+            lam = PatchContactMultiplier(disc, y_sol)(disc.D * np.asarray(y_sol, float))
         lam_term, lam_dx = _vertex_moment_term(mesh, lam, q), dx(intrules={TRIG: _vertex_rule()})
-    else:  # lam^ (contact-weighted) or the dual-basis lam_h: exact product with the FE mass rule
+    else:  # lam^ (contact-weighted L2 fit, q >= 3) or the dual-basis lam_h: exact product with the FE mass rule
         if multiplier == "contact":
-            if y_sol is None:
-                raise ValueError("the contact-weighted multiplier needs y_sol (X3)")
             lam = ContactMultiplier(disc, y_sol)(disc.D * np.asarray(y_sol, float))
         else:
             lam, lam_order = gfs["lam"], p
