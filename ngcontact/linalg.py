@@ -14,7 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SPDSolver", "SOLVERS", "ngsolve_coo", "pcg", "PCGResult"]
+__all__ = ["SPDSolver", "FixedPatternCholesky", "SOLVERS", "ngsolve_coo", "pcg", "PCGResult"]
 
 SOLVERS = ("sparsecholesky", "scipy")
 
@@ -64,6 +64,64 @@ class SPDSolver:
             self._sol.data = self._inv * self._rhs
             return np.array(self._sol.FV().NumPy())
         return self._lu.solve(np.asarray(b, dtype=float))
+
+
+class FixedPatternCholesky:
+    """Sparse Cholesky of the matrices ``K`` restricted to a changing set of kept unknowns, with the
+    symbolic analysis (fill-reducing ordering, elimination tree) done once.
+
+    A matrix of the family is K + diag(d) on the kept unknowns; it is embedded in K's pattern by
+    zeroing the rows and columns of the dropped unknowns and putting 1 on their diagonal, so every
+    member has the same pattern and NGSolve's ``SparseCholesky.Update()`` refactors it numerically.
+    Measured on the 5-point Laplacian with 1.05M unknowns (2 threads, loaded machine): fresh
+    factorization 8.5 s, numeric refactorization 3.7 s.  Used by
+    :class:`~ngcontact.complementarity.FactorReuse` for one-sided (obstacle-type) constraints, whose
+    Newton matrices are exactly of this form.
+    """
+
+    def __init__(self, K: sp.spmatrix):
+        K = sp.csr_matrix(K, dtype=float)
+        K.sum_duplicates()
+        K.sort_indices()
+        self.n = K.shape[0]
+        self._K = K
+        coo = K.tocoo()
+        self._row, self._col = coo.row, coo.col
+        self._diag = np.flatnonzero(self._row == self._col)  # position of (i, i): one per row, rows sorted
+        if len(self._diag) != self.n:
+            raise ValueError("K must store every diagonal entry")
+        self._mat = ngsolve_coo(self._row, self._col, coo.data, self.n, self.n)
+        self._vals = self._mat.AsVector().FV().NumPy()
+        if not np.array_equal(self._vals, coo.data):  # NGSolve stores CSR sorted like scipy's canonical form
+            raise RuntimeError("unexpected entry order of the NGSolve sparse matrix")
+        self._inv = None
+        self._rhs = self._mat.CreateRowVector()
+        self._sol = self._mat.CreateColVector()
+        self.factorizations = 0
+
+    def factor(self, keep: np.ndarray, diag_add: Optional[np.ndarray] = None) -> None:
+        """Factorize K + diag(diag_add) on the unknowns ``keep`` (identity elsewhere)."""
+        from ngsolve import TaskManager
+
+        drop = ~np.asarray(keep, dtype=bool)
+        vals = self._K.data.copy()
+        if diag_add is not None:
+            vals[self._diag] += diag_add
+        vals[drop[self._row] | drop[self._col]] = 0.0
+        vals[self._diag[drop]] = 1.0
+        self._vals[:] = vals
+        with TaskManager():
+            if self._inv is None:
+                self._inv = self._mat.Inverse(inverse="sparsecholesky")
+            else:
+                self._inv.Update()
+        self.factorizations += 1
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """Full-length solve (b must vanish on the dropped unknowns; the solution does there too)."""
+        self._rhs.FV().NumPy()[:] = b
+        self._sol.data = self._inv * self._rhs
+        return np.array(self._sol.FV().NumPy())
 
 
 @dataclass

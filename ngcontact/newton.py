@@ -23,7 +23,7 @@ import numpy as np
 
 from .cfunctions import get_cfunction
 from .complementarity import LINEAR_PATHS, ComplementaritySystem, FactorReuse
-from .linalg import SPDSolver
+from .linalg import FixedPatternCholesky, SPDSolver
 
 __all__ = ["NewtonOptions", "IterationRecord", "NewtonResult", "semismooth_newton", "decoupled_newton",
            "armijo_backtracking"]
@@ -93,10 +93,13 @@ def semismooth_newton(
     y0: np.ndarray,
     options: NewtonOptions = NewtonOptions(),
     callback: Optional[Callable[[IterationRecord], None]] = None,
+    fixed: Optional[FixedPatternCholesky] = None,
 ) -> NewtonResult:
     """Solve the complementarity system from (x0, y0).
 
     ``callback(record)`` is called after every iteration (progress output).
+    ``fixed``: a :class:`~ngcontact.linalg.FixedPatternCholesky` of ``system.K`` whose symbolic
+    analysis the factorizations reuse (one-sided constraints only; see :class:`FactorReuse`).
     """
     cf = get_cfunction(options.cfun)
     line_search = options.line_search if options.line_search is not None else cf.name == "fb"
@@ -122,7 +125,7 @@ def semismooth_newton(
     # factorization reuse needs the generic reduced step (subclasses with their own newton_step: no)
     reuse = None
     if options.reuse_factorization and type(system).newton_step is ComplementaritySystem.newton_step:
-        reuse = FactorReuse(system)
+        reuse = FactorReuse(system, fixed=fixed)
     reason = f"maximum number of iterations ({options.maxit}) reached"
     for k in range(1, options.maxit + 1):
         t0 = time.perf_counter()
@@ -204,10 +207,17 @@ def decoupled_newton(
                                  system.D * (1.0 + 1.0 / alpha), solver=system.solver)
     scale, scale_w = np.linalg.norm(system.F), max(np.linalg.norm(Fw), np.finfo(float).tiny)
     t0 = time.perf_counter()
-    s = SPDSolver(S, system.solver).solve(F1 + F2)
+    fixed = None
+    if system.solver == "sparsecholesky" and options.reuse_factorization:
+        # S is also the w-system's matrix: its symbolic analysis serves the w-Newton steps
+        fixed = FixedPatternCholesky(S)
+        fixed.factor(np.ones(m, dtype=bool))
+        s = fixed.solve(F1 + F2)
+    else:
+        s = SPDSolver(S, system.solver).solve(F1 + F2)
     t_s = time.perf_counter() - t0
     wopts = replace(options, tol=max(options.tol * scale / scale_w, np.finfo(float).eps))
-    res = semismooth_newton(wsys, x0[:m] - x0[m:], y0, wopts, callback)
+    res = semismooth_newton(wsys, x0[:m] - x0[m:], y0, wopts, callback, fixed=fixed)
     w = res.x
     x = np.concatenate([(s + alpha * w) / (1 + alpha), (s - w) / (1 + alpha)])
     if res.history:
