@@ -118,40 +118,40 @@ class LagrangeNodes:
                 level[node[:, j]] = 2
                 cell_counter += 1
 
-        # --- local shape values per vertex-order class (shapes depend on it only)
-        cls_id = _order_class(verts)
-        vloc = np.empty((ne, npts, ndof_loc))
-        for c in np.unique(cls_id):
-            rep = int(np.flatnonzero(cls_id == c)[0])
-            fe = fes.GetFE(ElementId(VOL, rep))
-            block = np.array([np.asarray(fe.CalcShape(b[0] / p, b[1] / p)) for b in lat])
-            vloc[cls_id == c] = block
-
-        # --- keep one (element, point) per node: values agree by continuity
+        # --- keep one (element, point) per node, any one: values agree by continuity
+        # (a scatter instead of np.unique: no sort of the 3 ne (element, point) pairs)
         flat_node = node.ravel()
-        _, first = np.unique(flat_node, return_index=True)
-        if len(first) != ndof:
-            raise ValueError(f"found {len(first)} Lagrange nodes for {ndof} H1 dofs")
+        first = np.full(ndof, -1, dtype=np.int64)
+        first[flat_node] = np.arange(len(flat_node))
+        if (first < 0).any():
+            raise ValueError(f"found {int((first >= 0).sum())} Lagrange nodes for {ndof} H1 dofs")
         e_of, j_of = np.divmod(first, npts)
-        rows = np.repeat(flat_node[first], ndof_loc)
-        cols = dofs[e_of].ravel()
-        vals = vloc[e_of, j_of].ravel()
-        keep = np.abs(vals) > 1e-13
-        V = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(ndof, ndof))
+        if p == 1:  # NGSolve's P1 shapes are the barycentric coordinates: nodal already
+            V = sp.identity(ndof, format="csr")
+        else:
+            # --- local shape values per vertex-order class (shapes depend on it only)
+            cls_id = _order_class(verts)
+            vloc = np.empty((ne, npts, ndof_loc))
+            for c in np.unique(cls_id):
+                rep = int(np.flatnonzero(cls_id == c)[0])
+                fe = fes.GetFE(ElementId(VOL, rep))
+                block = np.array([np.asarray(fe.CalcShape(b[0] / p, b[1] / p)) for b in lat])
+                vloc[cls_id == c] = block
+            rows = np.repeat(np.arange(ndof), ndof_loc)
+            cols = dofs[e_of].ravel()
+            vals = vloc[e_of, j_of].ravel()
+            keep = np.abs(vals) > 1e-13
+            V = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(ndof, ndof))
 
         # --- physical coordinates (curved elements included)
         ir = IntegrationRule([(b[0] / p, b[1] / p, 0.0) for b in lat], [0.0] * npts)
         mapped = mesh.MapToAllElements(ir, VOL)
         xs = np.asarray(x(mapped)).ravel()
         ys = np.asarray(y(mapped)).ravel()
-        coords = np.empty((ndof, 2))
-        coords[flat_node[first], 0] = xs[first]
-        coords[flat_node[first], 1] = ys[first]
+        coords = np.stack([xs[first], ys[first]], axis=1)
 
-        T = _block_triangular_inverse(V, dofs, level, p)
-        by_node = np.empty(ndof, dtype=np.int64)
-        by_node[flat_node[first]] = first
-        return cls(V=V, T=T, coords=coords, level=level, _mapped=mapped, _first=by_node)
+        T = V if p == 1 else _block_triangular_inverse(V, dofs, level, p)
+        return cls(V=V, T=T, coords=coords, level=level, _mapped=mapped, _first=first)
 
     @property
     def ndof(self) -> int:
@@ -164,6 +164,8 @@ class LagrangeNodes:
 
     def transform(self, A: sp.spmatrix) -> sp.csr_matrix:
         """Matrix of a bilinear form in the Lagrange basis: ``T^T A T``."""
+        if not self.level.any():  # P1: vertex nodes only, T = I
+            return sp.csr_matrix(A)
         return (self.T.T @ (A @ self.T)).tocsr()
 
 

@@ -245,7 +245,9 @@ def _nested_p1_values(previous, pts, values):
     T = previous.mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
     if previous.fes.ndof != previous.mesh.nv or len(T) != previous.mesh.ne:
         return None
-    E = np.unique(np.sort(T[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    pairs = np.sort(T[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    ekey = np.unique(pairs[:, 0] * len(P) + pairs[:, 1])  # 1-d integer keys: much faster than unique(axis=0)
+    E = np.stack([ekey // len(P), ekey % len(P)], axis=1)
     cand = np.concatenate([P[:, 0] + 1j * P[:, 1], 0.5 * (P[E[:, 0], 0] + P[E[:, 1], 0])
                            + 1j * (0.5 * (P[E[:, 0], 1] + P[E[:, 1], 1]))])
     order = np.argsort(cand)
