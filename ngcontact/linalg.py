@@ -50,7 +50,10 @@ class SPDSolver:
             coo = sp.triu(A, format="coo")  # the factorization reads one triangle
             coo = (coo + sp.triu(coo, 1, format="coo").T).tocoo()
             self._mat = ngsolve_coo(coo.row, coo.col, coo.data, self.n, self.n)
-            self._inv = self._mat.Inverse(inverse="sparsecholesky")
+            from ngsolve import TaskManager
+
+            with TaskManager():  # threaded factorization: 5.2 s instead of 6.5 s at 1.05M unknowns, 2 threads
+                self._inv = self._mat.Inverse(inverse="sparsecholesky")
             self._rhs = self._mat.CreateRowVector()
             self._sol = self._mat.CreateColVector()
         else:
@@ -80,8 +83,11 @@ class FixedPatternCholesky:
     """
 
     def __init__(self, K: sp.spmatrix):
-        K = sp.csr_matrix(K, dtype=float)
+        K = sp.csr_matrix(K, dtype=float, copy=True)
         K.sum_duplicates()
+        # explicit zeros (P1 stiffness couplings across right angles: 9- instead of 5-point pattern on
+        # ex9's mesh) would be kept as structural nonzeros: 7.0 s instead of 4.2 s at 1.05M unknowns
+        K.eliminate_zeros()
         K.sort_indices()
         self.n = K.shape[0]
         self._K = K
