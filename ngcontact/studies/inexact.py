@@ -209,7 +209,7 @@ def _tables(rows, logs, out):
         if not meshes:
             continue
         title = ("P2 on meshes fitted to the contact boundary r = 1/sqrt 2 (`disk_fitted`; the P2 estimator is "
-                 "sharp there: I_eff 1.05-1.15, `results/estimators/TABLES.md`)" if order == "2f" else f"P{order}")
+                 "sharp there: I_eff 1.06-1.19 from level 1, `results/estimators/TABLES.md`)" if order == "2f" else f"P{order}")
         L += [f"## {title}: Newton / GMRES iterations, energy error, time per mesh", "",
               "| elements | ndof | mode | Newton | GMRES total | GMRES accepted | GMRES 1st step | energy error "
               "| err / err(direct) | eta_disc | eta_lin | eta_alg | solve [s] | of which estimators [s] |",
