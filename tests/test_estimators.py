@@ -361,3 +361,15 @@ def test_patch_contact_multiplier():
     assert vals[r > rho].max() == 0.0
     assert np.abs(vals[r < rho] - 2 * g).max() <= 0.05 * 2 * g  # measured 3.0 % (level 1)
     assert pm.n_contact_elements == int((r < rho).sum())
+
+
+def test_dirichlet_correction_enters_the_marking_indicators():
+    """Non-polynomial Dirichlet data (test 1): the element parts bc_K of the data correction sum to
+    eta_bc^2 + eps_w^2 and are part of eta_K (the adaptive loop refines where they are large); exact
+    data (disk): no bc_K."""
+    est = study("test1", 1)[1]["est"]
+    assert est.bc_K is not None and est.eta_bc > 0
+    assert abs(est.bc_K.sum() - (est.eta_bc ** 2 + est.eps_w ** 2)) <= 1e-10 * (est.eta_bc ** 2 + est.eps_w ** 2)
+    base = ((est.eta_F + est.eta_R) ** 2).sum(axis=0) + np.maximum(est.eta_C, 0.0)
+    assert np.allclose(est.eta_K ** 2, base + est.bc_K)
+    assert study("disk", 1)[0]["est"].bc_K is None

@@ -386,7 +386,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         key = ("bc", dirichlet_correction)
         if key not in cache:
             cache[key] = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
-        ws, eta_bc, eps_w = cache[key]
+        ws, eta_bc, eps_w, _ = cache[key]
         exact_bc = all(w is None for w in ws)
         vals, grads, gap, ggap = _corrected_fields(prob, fields, ws)
 

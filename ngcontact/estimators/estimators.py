@@ -170,6 +170,9 @@ class Estimate:
         wall times [s] of the flux reconstruction and of the whole estimate
         (flux included, error computation excluded).
     flux : FluxReconstruction
+    bc_K : ndarray or None
+        per element sum_a mu_a (||grad w_ah||_K^2 + ||grad w_ah + rho_a||_K^2): where the Dirichlet
+        data correction lives (enters ``eta_K``; None for exact data).
     """
 
     fields: Tuple[str, ...]
@@ -193,6 +196,7 @@ class Estimate:
     time_flux: float = 0.0
     time_total: float = 0.0
     flux: Optional[FluxReconstruction] = field(default=None, repr=False)
+    bc_K: Optional[np.ndarray] = field(default=None, repr=False)
 
     @property
     def i_eff(self) -> float:
@@ -201,8 +205,13 @@ class Estimate:
 
     @property
     def eta_K(self) -> np.ndarray:
-        """Local indicators (sum_alpha (eta_F + eta_R)^2 + max(eta_C, 0))^(1/2), for marking."""
-        return np.sqrt(((self.eta_F + self.eta_R) ** 2).sum(axis=0) + np.maximum(self.eta_C, 0.0))
+        """Local indicators (sum_alpha (eta_F + eta_R)^2 + max(eta_C, 0) + bc_K)^(1/2), for marking
+        (bc_K: the element parts of eta_bc^2 + eps_w^2, so that refinement also reduces the error of
+        non-polynomial Dirichlet data)."""
+        loc = ((self.eta_F + self.eta_R) ** 2).sum(axis=0) + np.maximum(self.eta_C, 0.0)
+        if self.bc_K is not None:
+            loc = loc + np.maximum(self.bc_K, 0.0)
+        return np.sqrt(loc)
 
     def cell_data(self) -> dict:
         """Per-element fields as piecewise constant GridFunctions (for ``VTKOutput`` cell data).
@@ -365,6 +374,8 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int):
     eps_w : float
         (sum_a mu_a ||grad w_ah + rho_a||^2)^{1/2}, rho_a a divergence-free
         equilibration of -grad w_ah (bound of sup_z (w_h, z)_mu / |||z|||).
+    bc_K : ndarray or None
+        element parts of eta_bc^2 + eps_w^2 (for marking).
     """
     prob = disc.problem
     gs = (prob.g1, prob.g2) if prob.kind == "membranes" else (prob.g,)
@@ -379,7 +390,7 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int):
         scale = max(float(np.abs(gg.vec.FV().NumPy()).max()), 1.0)
         ws.append(w if float(np.abs(w.vec.FV().NumPy()).max()) > 1e-13 * scale else None)
     if all(w is None for w in ws):
-        return ws, 0.0, 0.0
+        return ws, 0.0, 0.0, None
     u, v = V.TnT()
     a = BilinearForm(grad(u) * grad(v) * dx).Assemble()
     inv = a.mat.Inverse(V.FreeDofs(), inverse="sparsecholesky")
@@ -390,6 +401,7 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int):
     c = BilinearForm(grad(ph) * grad(ps) * dx + 1e-10 * ph * ps * dx).Assemble()
     cinv = c.mat.Inverse(inverse="sparsecholesky")
     bc2 = eps2 = 0.0
+    loc = np.zeros(disc.mesh.ne)
     for fd, w in zip(fields, ws):
         if w is None:
             continue
@@ -399,16 +411,19 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int):
         phi = GridFunction(W, name=f"phi_{fd.name}")
         phi.vec.data = cinv * LinearForm(-grad(w) * curl_ps * dx).Assemble().vec
         rho = CoefficientFunction((grad(phi)[1], -grad(phi)[0]))  # div rho = 0
-        bc2 += fd.mu * Integrate(grad(w) * grad(w) * dx, disc.mesh)
-        eps2 += fd.mu * Integrate((grad(w) + rho) ** 2 * dx, disc.mesh)
-    return ws, math.sqrt(max(bc2, 0.0)), math.sqrt(max(eps2, 0.0))
+        b_K = fd.mu * Integrate(grad(w) * grad(w) * dx, disc.mesh, element_wise=True).NumPy()
+        e_K = fd.mu * Integrate((grad(w) + rho) ** 2 * dx, disc.mesh, element_wise=True).NumPy()
+        bc2 += float(b_K.sum())
+        eps2 += float(e_K.sum())
+        loc += b_K + e_K
+    return ws, math.sqrt(max(bc2, 0.0)), math.sqrt(max(eps2, 0.0)), loc
 
 
 def _dirichlet_lifting(disc, fields, p: int, mode):
     """(ws, eta_bc, eps_w) of :func:`_dirichlet_correction` with w_h in P_{p+2}; ``mode``:
     True (rho in curl P_{p+3}), "fast" (curl P_{p+2}) or False (no correction)."""
     if not mode:
-        return [None] * len(fields), 0.0, 0.0
+        return [None] * len(fields), 0.0, 0.0, None
     k = p + 2
     return _dirichlet_correction(disc, fields, k, k - 1 if mode == "fast" else k)
 
@@ -595,7 +610,7 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     with TaskManager():
         area = ew(CoefficientFunction(1.0), dx)
         # corrected solution u~_h = u_h + w_h (exact Dirichlet trace)
-        ws, eta_bc, eps_w = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
+        ws, eta_bc, eps_w, bc_K = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
         vals, grads, gap, ggap = _corrected_fields(prob, fields, ws)
 
         # flux and residual estimators, element means of the residual
@@ -651,7 +666,7 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     return Estimate(fields=tuple(fd.name for fd in fields), eta_F=eta_F, eta_R=eta_R, eta_C=eta_C, h=h,
                     eta_FR=eta_FR, eta_quad=eta_quad, eta_nonc1=nonc1, eta_nonc2=nonc2, eta_nonc3=nonc3,
                     eta_bc=eta_bc, eps_w=eps_w, eta_nonc2_seed=nonc2_seed, C_F=C_F, C_Omega_mu=C_om, eta_seed=eta_seed,
-                    eta=eta, err_energy=err, time_flux=flux.time, time_total=t_total, flux=flux)
+                    eta=eta, err_energy=err, time_flux=flux.time, time_total=t_total, flux=flux, bc_K=bc_K)
 
 
 def _mean_term(dual: _P0Dual, rbar, area, mus, C_F, eta_FR, negligible: float = 1e-3) -> float:
