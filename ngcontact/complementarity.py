@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
@@ -226,10 +227,11 @@ class ComplementaritySystem:
         tb = g_target[eq_rows] + self.b[eq_rows]
         x_aff[slaves] = np.where(slave_is_lo, -tb, tb)
 
-        Ared = (Z.T @ Kaug @ Z).tocsr()
         bred = Z.T @ (rhs - Kaug @ x_aff)
-        return LinearizedStep(self, Ared, bred, Z, x_aff, keep, eq, mixed, y_fixed, c0, w,
-                              eq_rows, slaves, slave_is_lo)
+        # A = Z^T Kaug Z is formed on first use (the fixed-pattern factorization of FactorReuse does not
+        # need it: 0.2 s per step at 1M unknowns)
+        return LinearizedStep(self, None, bred, Z, x_aff, keep, eq, mixed, y_fixed, c0, w,
+                              eq_rows, slaves, slave_is_lo, _Kaug=Kaug)
 
 
 @dataclass
@@ -245,7 +247,7 @@ class LinearizedStep:
     """
 
     system: "ComplementaritySystem"
-    A: sp.csr_matrix
+    _A: Optional[sp.csr_matrix]
     b: np.ndarray
     Z: sp.csr_matrix
     x_aff: np.ndarray
@@ -258,10 +260,18 @@ class LinearizedStep:
     eq_rows: np.ndarray
     slaves: np.ndarray
     slave_is_lo: np.ndarray
+    _Kaug: Optional[sp.csr_matrix] = field(default=None, repr=False)
+
+    @property
+    def A(self) -> sp.csr_matrix:
+        """The reduced matrix Z^T Kaug Z (formed on first use)."""
+        if self._A is None:
+            self._A = (self.Z.T @ self._Kaug @ self.Z).tocsr()
+        return self._A
 
     @property
     def size(self) -> int:
-        return self.A.shape[0]
+        return int(self.keep.sum())
 
     def restrict(self, x: np.ndarray) -> np.ndarray:
         """z with Z z = x on the kept unknowns (warm start from a full vector x)."""
