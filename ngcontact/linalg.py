@@ -76,8 +76,8 @@ class FixedPatternCholesky:
     A matrix of the family is K + diag(d) on the kept unknowns; it is embedded in K's pattern by
     zeroing the rows and columns of the dropped unknowns and putting 1 on their diagonal, so every
     member has the same pattern and NGSolve's ``SparseCholesky.Update()`` refactors it numerically.
-    Measured on the 5-point Laplacian with 1.05M unknowns (2 threads, loaded machine): fresh
-    factorization 8.5 s, numeric refactorization 3.7 s.  Used by
+    Measured on ex9's matrix with 1.05M unknowns (2 threads): first factorization 4.4 s, numeric
+    refactorization 2.0 s (fresh SPDSolver factorization 5.2 s).  Used by
     :class:`~ngcontact.complementarity.FactorReuse` for one-sided (obstacle-type) constraints, whose
     Newton matrices are exactly of this form.
     """

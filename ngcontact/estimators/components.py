@@ -106,8 +106,8 @@ from ngsolve import (L2, CoefficientFunction, GridFunction, IfPos, Integrate, Ta
 from ..cfunctions import get_cfunction
 from .estimators import (QuadratureArrays, _P0Dual, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
-from .flux import (ContactMultiplier, PatchContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules, disc_cache, equilibrate, field_data,
-                   vertex_moments)
+from .flux import (ContactMultiplier, PatchContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules,
+                   disc_cache, equilibrate, field_data, vertex_moments)
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
            "newton_iterates", "plot_components_history", "ComponentsHistory"]

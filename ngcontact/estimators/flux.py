@@ -285,12 +285,8 @@ class ContactMultiplier:
 
     def __init__(self, disc, y_marker, *, mixed: float = 1e-3, empty: float = 1e-6, tol: float = 1e-8):
         mesh = disc.mesh
-        Psi, vol, V1 = vertex_moments(disc)
-        self.Psi, self.disc = Psi, disc
-        c = Psi.T @ (disc.D * np.maximum(np.asarray(y_marker, float), 0.0)) / vol
-        cmax = float(c.max(initial=0.0))
-        pos = c > tol * cmax if cmax > 0 else np.zeros(mesh.nv, bool)
-        k = pos[_element_vertices(disc)].sum(axis=1)
+        self.Psi, self.disc = vertex_moments(disc)[0], disc
+        k = _contact_vertices(disc, y_marker, tol)[_element_vertices(disc)].sum(axis=1)
         winv = np.where(k == 3, 1.0, np.where(k > 0, mixed, empty))
         self.n_contact_elements = int((k == 3).sum())
         P0 = L2(mesh, order=0)
@@ -348,11 +344,8 @@ class PatchContactMultiplier:
         mesh = disc.mesh
         Psi, vol, _ = vertex_moments(disc)
         self.Psi, self.disc = Psi, disc
-        c = Psi.T @ (disc.D * np.maximum(np.asarray(y_marker, float), 0.0)) / vol
-        cmax = float(c.max(initial=0.0))
-        pos = c > tol * cmax if cmax > 0 else np.zeros(mesh.nv, bool)
         ev = _element_vertices(disc)
-        contact = pos[ev].all(axis=1)
+        contact = _contact_vertices(disc, y_marker, tol)[ev].all(axis=1)
         self.n_contact_elements = int(contact.sum())
         self.V = Discontinuous(H1(mesh, order=1))  # dof 3K + i = value at vertex i of element K
         c_ = disc_cache(disc)
@@ -374,6 +367,14 @@ class PatchContactMultiplier:
         gf = GridFunction(self.V, name=name)
         gf.vec.FV().NumPy()[:] = (self._coef * m[self._ev]).ravel()
         return gf
+
+
+def _contact_vertices(disc, y_marker, tol: float) -> np.ndarray:
+    """Vertices whose hat moment of the multiplier y_marker^+ is positive: c_a = m_a / (psi_a, 1) > tol max c."""
+    Psi, vol, _ = vertex_moments(disc)
+    c = Psi.T @ (disc.D * np.maximum(np.asarray(y_marker, float), 0.0)) / vol
+    cmax = float(c.max(initial=0.0))
+    return c > tol * cmax if cmax > 0 else np.zeros(disc.mesh.nv, bool)
 
 
 def _element_vertices(disc) -> np.ndarray:
