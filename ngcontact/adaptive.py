@@ -38,7 +38,7 @@ import ngsolve
 from .discretizations import DISCRETIZATIONS
 from .domains import mesh_size
 from .marking import mark
-from .newton import NewtonOptions, semismooth_newton
+from .newton import semismooth_newton
 from .rates import rates
 from .domains import DIRICHLET
 
@@ -63,12 +63,15 @@ def interior_nodes(mesh, order: int) -> int:
     return int(sum(ngsolve.H1(mesh, order=order, dirichlet=DIRICHLET).FreeDofs()))
 
 
-def _solve(disc, x0, y0, options, cb):
-    """Newton on one level; the same drivers as :func:`ngcontact.runner.run_scene`."""
+def _solve(disc, x0, y0, options, cb, warm: bool = False):
+    """Newton on one level; the same drivers as :func:`ngcontact.runner.run_scene`
+    (``warm``: x0 is the prolongated previous level, the reference of the balanced stop)."""
+    from .runner import balance_reference, newton_options
+
     mode = getattr(options, "newton", "exact")
     if mode == "exact":
-        nopts = NewtonOptions(cfun=options.cfun, tol=options.tol, maxit=options.maxit)
-        return semismooth_newton(disc.system, x0, y0, nopts, callback=cb)
+        ref = balance_reference(options, x0) if warm else None
+        return semismooth_newton(disc.system, x0, y0, newton_options(options), callback=cb, reference=ref)
     from .inexact import InexactOptions, inexact_semismooth_newton
 
     iopts = InexactOptions(mode=mode.replace("exact-gmres", "exact"), cfun=options.cfun, tol=options.tol,
@@ -100,7 +103,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
         why the loop ended.
     """
     from .estimators import estimate
-    from .runner import RunResult
+    from .runner import RunResult, balance_columns
 
     say = progress or (lambda msg: None)
     problem = scene.problem
@@ -132,7 +135,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
                 newton_callback(level, rec)
 
         t2 = time.perf_counter()
-        sol = _solve(disc, x0, y0, options, cb)
+        sol = _solve(disc, x0, y0, options, cb, warm=prev is not None and options.start == "nested")
         t3 = time.perf_counter()
         errs = disc.errors(sol.x, sol.y)
         comp = disc.complementarity(sol.x, sol.y)
@@ -153,6 +156,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
             "newton_its": sol.iterations,
             "newton_converged": int(sol.converged),
             "res_final": sol.history[-1].res,
+            **(balance_columns(sol) if options.newton_stop == "balanced" else {}),
             "active_nodes": sol.history[-1].n_active,
             "linear_size": max((getattr(r, "linear_size", 0) for r in sol.history), default=0),
             **comp,
@@ -203,7 +207,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
                 for q, r in zip(result.rows, rates(n_h, [q[col] for q in result.rows])):
                     q[rate_col] = r
         msg = (f"level {level}: ndof {disc.ndof:>8d}  marked {row['marked']:>6d}  Newton {sol.iterations:3d} its"
-               f" ({'converged' if sol.converged else 'NOT converged: ' + sol.reason})  eta {est.eta:.3e}")
+               f" ({sol.reason if sol.converged else 'NOT converged: ' + sol.reason})  eta {est.eta:.3e}")
         if "err_energy" in errs:
             msg += f"  err {errs['err_energy']:.3e}  I_eff {est.i_eff:.3f}"
         say(msg + f"  t_cum {t_cum:.2f} s")

@@ -63,6 +63,11 @@ def _build_parser():
                    help="adaptive: stop GMRES when eta_alg <= GAMMA_ALG max(eta_disc, eta_lin) (default 0.3)")
     r.add_argument("--gamma-lin", type=float, dest="gamma_lin",
                    help="adaptive: stop Newton when eta_lin <= GAMMA_LIN eta_disc (default 0.3)")
+    r.add_argument("--newton-stop", choices=["residual", "balanced"], dest="newton_stop",
+                   help="exact Newton: stop on ||Phi||/||F|| <= tol (residual, default) or also when the linearization "
+                        "defect is below GAMMA_BALANCE x the coarse-to-fine change (balanced, nested levels)")
+    r.add_argument("--gamma-balance", type=float, dest="gamma_balance",
+                   help="with --newton-stop balanced: the ratio (default 1e-3)")
     r.add_argument("--nu", type=int, help="adaptive: GMRES iterations between estimator evaluations (default 10)")
     r.add_argument("--adaptive", action="store_true",
                    help="adaptive refinement (fem): solve -> estimate -> mark -> bisect, warm-started Newton")
@@ -130,7 +135,8 @@ def _cmd_run(args, argv) -> int:
                  tol=args.tol, maxit=args.maxit, solver=args.solver,
                  condense=False if args.no_condense else None, estimate=True if args.estimate else None,
                  newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu,
-                 decouple=True if args.decouple else None)
+                 decouple=True if args.decouple else None, newton_stop=args.newton_stop,
+                 gamma_balance=args.gamma_balance)
     adaptive_opts = dict(marking=args.marking, theta=args.theta, max_ndof=args.max_ndof, target_eta=args.target_eta,
                          max_time=args.max_time, max_levels=args.max_levels)
     if not args.adaptive and any(v is not None for v in adaptive_opts.values()):

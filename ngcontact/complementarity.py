@@ -71,7 +71,9 @@ class ComplementaritySystem:
         if np.any(self.D <= 0):
             raise ValueError("D must be positive")
         used = np.concatenate([self.up, self.lo[self.lo >= 0]])
-        if len(np.unique(used)) != len(used):
+        if len(used) and (used.min() < 0 or used.max() >= n):
+            raise ValueError(f"constraint rows must refer to unknowns 0..{n - 1}")
+        if len(used) and np.bincount(used, minlength=n).max() > 1:  # O(n): np.unique sorts (0.4 s at 1M)
             raise ValueError("each unknown may appear in at most one constraint row")
         has_lo = self.lo >= 0
         rows = np.concatenate([np.arange(m), np.flatnonzero(has_lo)])

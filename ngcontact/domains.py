@@ -122,17 +122,21 @@ class Domain:
 
 # ---- structured rectangles: numpy arrays (X, T, S, tag) -> netgen mesh ----
 
-def _red_refine(X, T, S, tag):
+def _red_refine(X, T, S, tag, parents: Optional[list] = None):
     """One red refinement of vertex/triangle/segment arrays (straight boundary).
 
     Old vertices keep their numbers, new ones (edge midpoints) follow; the
     children of triangle k are triangles 4k, ..., 4k+3, all oriented like
-    their parent, the last one being the middle triangle.
+    their parent, the last one being the middle triangle.  ``parents``: a
+    list to which the (nv_fine, 2) parent table (see ``_BoxDomain.meshes``) is appended.
     """
     nv = len(X)
     E = np.sort(T[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
     keys, inv = np.unique(E[:, 0] * nv + E[:, 1], return_inverse=True)
     X = np.vstack([X, 0.5 * (X[keys // nv] + X[keys % nv])])
+    if parents is not None:
+        old = np.arange(nv, dtype=np.int64)
+        parents.append(np.concatenate([np.stack([old, old], axis=1), np.stack([keys // nv, keys % nv], axis=1)]))
     a, b, c = T.T
     ab, bc, ca = (nv + inv.reshape(-1, 3)).T
     T = np.stack([a, ab, ca, ab, b, bc, ca, bc, c, ab, bc, ca], axis=1).reshape(-1, 3)
@@ -192,16 +196,33 @@ class _BoxDomain(Domain):
     def _arrays(self, level: int):
         raise NotImplementedError
 
-    def _next(self, arrays, level: int):
-        """Arrays of ``level`` given those of ``level - 1``."""
+    def _next(self, arrays, level: int, parents: Optional[list] = None):
+        """Arrays of ``level`` given those of ``level - 1`` (``parents``: append the parent table)."""
         return self._arrays(level)
 
-    def _ngmeshes(self, start, stop):
-        arrays = self._arrays(start)
+    def _levels(self, start, stop):
+        arrays, parents = self._arrays(start), []
         for level in range(start, stop):
             if level > start:
-                arrays = self._next(arrays, level)
+                arrays = self._next(arrays, level, parents)
+            yield arrays, (parents.pop() if parents else None)
+
+    def _ngmeshes(self, start, stop):
+        for arrays, _ in self._levels(start, stop):
             yield _to_ngmesh(*arrays)
+
+    def meshes(self, levels: int) -> Iterator[ngsolve.Mesh]:
+        """Yield T_0, ..., T_{levels-1} (independent objects, see :meth:`Domain.meshes`).
+
+        T_j (j >= 1) carries ``ngc_parents``: an (nv_j, 2) integer array, vertex v of T_j being the
+        midpoint of vertices ngc_parents[v] of T_{j-1} (a repeated index: v is that coarse vertex).
+        Nested P1 prolongation reads it instead of matching coordinates
+        (``discretizations.fem._nested_p1_values``; it still checks the coordinates).
+        """
+        for arrays, parents in self._levels(0, _check_level(levels, "levels")):
+            mesh = ngsolve.Mesh(_to_ngmesh(*arrays))
+            mesh.ngc_parents = parents
+            yield mesh
 
     def h(self, level: int = 0) -> float:
         """Nominal mesh size: side of the squares of T_level (longest side if a rectangle)."""
@@ -249,8 +270,8 @@ class CrissCrossSquare(_BoxDomain):
             arrays = _red_refine(*arrays)
         return arrays
 
-    def _next(self, arrays, level):
-        return _red_refine(*arrays)
+    def _next(self, arrays, level, parents=None):
+        return _red_refine(*arrays, parents=parents)
 
 
 @dataclass(frozen=True)
@@ -284,6 +305,15 @@ class StructuredSquare(_BoxDomain):
         a = (i + (n + 1) * j).ravel()
         T = np.stack([a, a + 1, a + n + 2, a, a + n + 2, a + n + 1], axis=1).reshape(-1, 3)
         return X, T, S, tag
+
+    def _next(self, arrays, level, parents=None):
+        if parents is not None:  # grid index i + (2n+1) j of T_level from the n x n grid of T_{level-1}
+            n = self.n0 * 2 ** (level - 1)
+            j, i = np.divmod(np.arange((2 * n + 1) ** 2, dtype=np.int64), 2 * n + 1)
+            lo = (i // 2) + (n + 1) * (j // 2)  # (floor(i/2), floor(j/2)); the diagonals run (i,j)-(i+1,j+1)
+            hi = ((i + 1) // 2) + (n + 1) * ((j + 1) // 2)
+            parents.append(np.stack([lo, hi], axis=1))
+        return self._arrays(level)
 
 
 # ---- netgen geometries and mesh files: refined by netgen ----

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import VOL, ElementId, IntegrationRule, x, y
 
-__all__ = ["LagrangeNodes", "lattice"]
+__all__ = ["LagrangeNodes", "lattice", "meshpoints"]
 
 
 def lattice(p: int) -> np.ndarray:
@@ -73,8 +73,7 @@ class LagrangeNodes:
     T: sp.csr_matrix
     coords: np.ndarray
     level: np.ndarray
-    _mapped: object = None  # mapped lattice points of all elements
-    _first: np.ndarray = None  # index into _mapped of each node (numbered by dof)
+    _points: np.ndarray = None  # MeshPoints of the nodes (numbered by dof)
 
     @classmethod
     def build(cls, fes) -> "LagrangeNodes":
@@ -143,15 +142,14 @@ class LagrangeNodes:
             keep = np.abs(vals) > 1e-13
             V = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(ndof, ndof))
 
-        # --- physical coordinates (curved elements included)
-        ir = IntegrationRule([(b[0] / p, b[1] / p, 0.0) for b in lat], [0.0] * npts)
-        mapped = mesh.MapToAllElements(ir, VOL)
-        xs = np.asarray(x(mapped)).ravel()
-        ys = np.asarray(y(mapped)).ravel()
-        coords = np.stack([xs[first], ys[first]], axis=1)
+        # --- one MeshPoint per node (its element e_of, reference point lat[j_of] / p): coordinates and
+        # data are evaluated at ndof points, not at the ne * npts points of MapToAllElements
+        # (ex9, 1.05M nodes: build 2.1 s -> see module doc; values are bitwise the same)
+        points = meshpoints(mesh, e_of, lat[j_of, 0] / p, lat[j_of, 1] / p)
+        coords = np.stack([np.asarray(x(points)).ravel(), np.asarray(y(points)).ravel()], axis=1)
 
         T = V if p == 1 else _block_triangular_inverse(V, dofs, level, p)
-        return cls(V=V, T=T, coords=coords, level=level, _mapped=mapped, _first=first)
+        return cls(V=V, T=T, coords=coords, level=level, _points=points)
 
     @property
     def ndof(self) -> int:
@@ -159,14 +157,25 @@ class LagrangeNodes:
 
     def evaluate(self, cf) -> np.ndarray:
         """Values of a scalar CoefficientFunction at every node (vectorized)."""
-        vals = np.asarray(cf(self._mapped)).reshape(-1)
-        return vals[self._first]
+        return np.asarray(cf(self._points)).reshape(-1)
 
     def transform(self, A: sp.spmatrix) -> sp.csr_matrix:
         """Matrix of a bilinear form in the Lagrange basis: ``T^T A T``."""
         if not self.level.any():  # P1: vertex nodes only, T = I
             return sp.csr_matrix(A)
         return (self.T.T @ (A @ self.T)).tocsr()
+
+
+def meshpoints(mesh, elements: np.ndarray, xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    """NGSolve MeshPoints (structured array) at reference coordinates (xi, eta) of VOL ``elements``.
+
+    The mesh pointer and VOL tag are copied from a one-point ``MapToAllElements`` (0.06 s at 2M
+    elements; a point search ``mesh(x, y)`` first builds a search tree: 1.2 s)."""
+    proto = np.asarray(mesh.MapToAllElements(IntegrationRule([(1 / 3, 1 / 3, 0.0)], [0.0]), VOL))[:1]
+    mp = np.zeros(len(elements), dtype=proto.dtype)
+    mp["meshptr"], mp["VorB"], mp["nr"], mp["facetnr"] = proto["meshptr"][0], proto["VorB"][0], elements, -1
+    mp["x"], mp["y"] = xi, eta
+    return mp
 
 
 def _element_tables(fes, ne: int, ndof_loc: int):

@@ -24,6 +24,10 @@ err_jump            dg: jump seminorm (sum_F eta/h_F ||[u_ah - u_a]||_F^2)^(1/2)
 newton_its          semismooth Newton iterations on this level
 newton_converged    1 if ||Phi||/||F|| <= tol was reached, else 0
 res_final           final ||Phi||/||F||
+newton_balanced     --newton-stop balanced: 1 if the level stopped on eps_lin <= gamma_balance eps_disc
+eps_lin_final, eps_disc_final
+                    --newton-stop balanced: linearization defect and discretization proxy of
+                    the last iterate (ngcontact.newton module doc)
 active_nodes        nodes in the discrete contact set (gap <= X3)
 linear_size         largest linear system solved in a Newton step (reduced SPD /
                     condensed face system / full system)
@@ -92,7 +96,8 @@ __all__ = ["write_run", "read_history", "markdown_table", "HISTORY_COLUMNS"]
 
 HISTORY_COLUMNS = [
     "level", "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "err_energy", "rate_energy", "err_max_nodal",
-    "err_jump", "newton_its", "newton_converged", "res_final", "active_nodes", "linear_size",
+    "err_jump", "newton_its", "newton_converged", "res_final", "newton_balanced",
+    "eps_lin_final", "eps_disc_final", "active_nodes", "linear_size",
     "gmres_its", "gmres_max_step", "gmres_first_step", "n_estimates", "time_estimate_newton_s",
     "eta_disc_final", "eta_lin_final", "eta_alg_final", "gap_min", "lam_min",
     "product_max", "time_mesh_s", "time_mark_s", "time_assembly_s", "time_prolong_s", "time_solve_s", "time_linear_s",

@@ -13,7 +13,7 @@ import numpy as np
 
 from .discretizations import DISCRETIZATIONS
 from .linalg import SOLVERS
-from .newton import NewtonOptions, decoupled_newton, semismooth_newton
+from .newton import NewtonOptions, Reference, decoupled_newton, semismooth_newton
 from .rates import rates
 
 __all__ = ["RunOptions", "RunResult", "run_scene", "ESTIMATED"]
@@ -45,6 +45,8 @@ class RunOptions:
     gamma_alg: float = 0.3  # adaptive: stop GMRES when eta_alg <= gamma_alg max(eta_disc, eta_lin)
     gamma_lin: float = 0.3  # adaptive: stop Newton when eta_lin <= gamma_lin eta_disc
     nu: int = 10  # GMRES iterations between estimator evaluations
+    newton_stop: str = "residual"  # exact Newton: 'residual' (||Phi||/||F|| <= tol) | 'balanced' (newton module doc)
+    gamma_balance: float = 1e-3  # balanced: stop when eps_lin <= gamma_balance eps_disc (nested levels only)
     adaptive: bool = False  # solve -> estimate -> mark -> refine (ngcontact.adaptive) instead of uniform levels
     marking: str = "doerfler"  # adaptive: 'doerfler' (bulk, theta) or 'max' (eta_K >= theta max eta_K)
     theta: float = 0.5  # adaptive: marking parameter in (0, 1]
@@ -89,6 +91,13 @@ class RunOptions:
                 bad(name, "a positive number")
         if isinstance(self.nu, bool) or not isinstance(self.nu, int) or self.nu < 1:
             bad("nu", "a positive integer")
+        if self.newton_stop not in ("residual", "balanced"):
+            bad("newton_stop", "'residual' or 'balanced'")
+        if self.newton_stop == "balanced" and self.newton != "exact":
+            bad("newton_stop", f"'residual' with newton {self.newton!r} (the GMRES modes have their own stopping rules)")
+        v = self.gamma_balance
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 1:
+            bad("gamma_balance", "a number in (0, 1)")
         if not isinstance(self.adaptive, bool):
             bad("adaptive", "True or False")
         if self.adaptive and self.disc not in ESTIMATED:
@@ -134,6 +143,25 @@ class RunResult:
     stop_reason: Optional[str] = None  # adaptive runs: why the loop ended
 
 
+def newton_options(options: RunOptions) -> NewtonOptions:
+    """The exact Newton settings of a run."""
+    return NewtonOptions(cfun=options.cfun, tol=options.tol, maxit=options.maxit, stop=options.newton_stop,
+                         gamma_balance=float(options.gamma_balance))
+
+
+def balance_reference(options: RunOptions, x0) -> Reference:
+    """Balanced stop: the prolongated coarser solution x0, eps_disc = 2^-p |||x - x0||| (newton module doc;
+    p = the energy rate of every discretization here, HHO's order included)."""
+    return Reference(np.array(x0, dtype=float), 2.0 ** -options.order)
+
+
+def balance_columns(sol) -> dict:
+    """history.csv columns of the balanced stop (results.py)."""
+    last = sol.history[-1]
+    return {"newton_balanced": int(sol.reason == "balanced"), "eps_lin_final": getattr(last, "eps_lin", float("nan")),
+            "eps_disc_final": getattr(last, "eps_disc", float("nan"))}
+
+
 def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], None]] = None,
               newton_callback=None) -> RunResult:
     """Solve ``scene`` on levels 0..options.levels-1 of its domain."""
@@ -144,7 +172,7 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
     say = progress or (lambda msg: None)
     problem = scene.problem
     Disc = DISCRETIZATIONS[options.disc]
-    nopts = NewtonOptions(cfun=options.cfun, tol=options.tol, maxit=options.maxit)
+    nopts = newton_options(options)
     result = RunResult(scene=scene, options=options)
     prev, t_cum = None, 0.0
     meshes = problem.domain.meshes(options.levels)
@@ -166,7 +194,9 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
 
         t1 = time.perf_counter()
         if options.newton == "exact":
-            sol = (decoupled_newton if options.decouple else semismooth_newton)(disc.system, x0, y0, nopts, callback=cb)
+            ref = balance_reference(options, x0) if prev is not None and options.start == "nested" else None
+            sol = (decoupled_newton if options.decouple else semismooth_newton)(disc.system, x0, y0, nopts, callback=cb,
+                                                                               reference=ref)
         else:
             from .inexact import InexactOptions, inexact_semismooth_newton
 
@@ -201,6 +231,7 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             "newton_its": sol.iterations,
             "newton_converged": int(sol.converged),
             "res_final": sol.history[-1].res,
+            **(balance_columns(sol) if options.newton_stop == "balanced" else {}),
             "active_nodes": sol.history[-1].n_active,
             "linear_size": max((r.linear_size for r in sol.history), default=0),
             **({"gmres_its": sol.gmres_total, "gmres_max_step": max(r.gmres_its for r in sol.history),
@@ -233,7 +264,7 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             result.converged = False
             result.failures.append(f"level {level}: Newton did not converge: {sol.reason}")
         msg = (f"level {level}: ndof {disc.ndof:>8d}  Newton {sol.iterations:3d} its"
-               f" ({'converged' if sol.converged else 'NOT converged: ' + sol.reason})  "
+               f" ({sol.reason if sol.converged else 'NOT converged: ' + sol.reason})  "
                f"solve {t2 - t1:7.2f} s")
         if "err_energy" in errs:
             rate = row["rate_energy"]

@@ -26,7 +26,7 @@ from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integr
                      dx, grad)
 
 from ..complementarity import ComplementaritySystem
-from ..lagrange import LagrangeNodes
+from ..lagrange import LagrangeNodes, meshpoints
 from ..problems import ProblemDataError, check_data_on_points, data_fields
 from ..domains import DIRICHLET
 
@@ -37,6 +37,21 @@ def _csr(bf_or_mat) -> sp.csr_matrix:
     mat = getattr(bf_or_mat, "mat", bf_or_mat)
     data, indices, indptr = mat.CSR()  # views: copy before the form goes away
     return sp.csr_matrix((np.array(data), np.array(indices), np.array(indptr)), shape=(mat.height, mat.width))
+
+
+def _block_diag_csr(blocks) -> sp.csr_matrix:
+    """blockdiag of CSR matrices by concatenating their arrays (scipy's block_diag goes through
+    COO: 0.8 s at 1M unknowns, this ~0.05 s)."""
+    blocks = [sp.csr_matrix(B) for B in blocks]
+    if len(blocks) == 1:
+        return blocks[0]
+    indptr, indices, data, nnz, r, c = [np.zeros(1, dtype=np.int64)], [], [], 0, 0, 0
+    for B in blocks:
+        indptr.append(B.indptr[1:].astype(np.int64) + nnz)
+        indices.append(B.indices.astype(np.int64) + c)
+        data.append(B.data)
+        nnz, r, c = nnz + B.nnz, r + B.shape[0], c + B.shape[1]
+    return sp.csr_matrix((np.concatenate(data), np.concatenate(indices), np.concatenate(indptr)), shape=(r, c))
 
 
 class FEMDiscretization:
@@ -97,7 +112,7 @@ class FEMDiscretization:
             self.lift.append(gb)
             F.append(Fn[self.interior] - mu * (Sib @ gb[self.boundary]))
         self.nfields = len(F)
-        K = sp.block_diag([mu * Sii for mu in problem.mus], format="csr")
+        K = _block_diag_csr([mu * Sii for mu in problem.mus])
         if problem.kind == "membranes":
             up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
         else:
@@ -144,7 +159,10 @@ class FEMDiscretization:
         names = ["u1", "u2"][: self.nfields] if self.nfields == 2 else ["u"]
         if self.order == 1 and previous.order == 1:  # nested P1 meshes: no point search needed
             nodal = previous.nodal_fields(x, y)
-            vals = _nested_p1_values(previous, pts, np.stack([nodal[n] for n in names + ["lam"]]))
+            stacked = np.stack([nodal[n] for n in names + ["lam"]])
+            vals = _parent_p1_values(previous, self, stacked)
+            if vals is None:
+                vals = _nested_p1_values(previous, pts, stacked)
             if vals is not None:
                 return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1])
         gfs = previous.gridfunctions(x, y)
@@ -229,6 +247,22 @@ class FEMDiscretization:
                 "product_max": float(np.max(np.abs(g * y), initial=0.0))}
 
 
+def _parent_p1_values(previous, fine, values):
+    """P1 interpolant of nodal ``values`` (k x coarse nodes) at ``fine``'s interior nodes from the
+    parent table ``fine.mesh.ngc_parents`` of structured domains (``domains._BoxDomain.meshes``),
+    or None (no table, or it does not describe these two meshes: checked on the coordinates,
+    bitwise).  ex9, 1M nodes: ~0.05 s instead of ~0.8 s for :func:`_nested_p1_values`."""
+    par = getattr(fine.mesh, "ngc_parents", None)
+    if par is None or fine.fes.ndof != fine.mesh.nv or previous.fes.ndof != previous.mesh.nv \
+            or par.shape != (fine.mesh.nv, 2) or par.max(initial=0) >= previous.mesh.nv:
+        return None
+    a, b = par[fine.interior, 0], par[fine.interior, 1]
+    P = previous.nodes.coords
+    if not np.array_equal(0.5 * (P[a] + P[b]), fine.nodes.coords[fine.interior]):
+        return None
+    return 0.5 * (values[:, a] + values[:, b])
+
+
 def _nested_p1_values(previous, pts, values):
     """P1 interpolant of nodal ``values`` (k x coarse nodes) of ``previous`` at ``pts``, or None.
 
@@ -286,10 +320,7 @@ def _locate(mesh, pts):
         return None
     A, B, C = P[T[el, 0]], P[T[el, 1]], P[T[el, 2]]
     lam = np.linalg.solve(np.stack([A - C, B - C], axis=-1), (pts - C)[..., None])[..., 0]
-    proto = np.asarray(mesh(np.array([P[0, 0]]), np.array([P[0, 1]])))
-    mp = np.zeros(len(pts), dtype=proto.dtype)
-    mp["x"], mp["y"] = lam[:, 0], lam[:, 1]
-    mp["meshptr"], mp["VorB"], mp["nr"], mp["facetnr"] = proto["meshptr"][0], proto["VorB"][0], el, -1
+    mp = meshpoints(mesh, el, lam[:, 0], lam[:, 1])
     return mp
 
 
