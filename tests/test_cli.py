@@ -57,6 +57,7 @@ def test_user_scene_without_exact_solution(tmp_path):
     (["run", "test1", "--levels", "0"], "option levels must be"),
     (["run", "test1", "--cfun", "max"], "invalid choice"),
     (["run", "test1", "--tol", "abc"], "invalid float value"),
+    (["run", "test1", "--newton-stop", "balanced", "--gamma-balance", "5"], "option gamma_balance must be"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_input_gives_one_line_and_exit_code_2(args, msg, capsys, tmp_path):

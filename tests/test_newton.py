@@ -4,7 +4,7 @@ import pytest
 import scipy.sparse as sp
 
 from ngcontact.complementarity import ComplementaritySystem
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton import NewtonOptions, linearization_defect, semismooth_newton
 
 
 def _system(n=60):
@@ -69,7 +69,58 @@ def test_fb_line_search_decreases_the_merit_function():
     assert all(b < a for a, b in zip(r, r[1:]))
 
 
-@pytest.mark.parametrize("bad", [dict(cfun="max"), dict(tol=-1.0), dict(maxit=0)])
+@pytest.mark.parametrize("bad", [dict(cfun="max"), dict(tol=-1.0), dict(maxit=0), dict(stop="energy"),
+                                 dict(gamma_balance=0.0), dict(gamma_balance=1.5)])
 def test_bad_options_are_rejected(bad):
     with pytest.raises(ValueError):
         NewtonOptions(**bad)
+
+
+def test_linearization_defect_vanishes_at_the_solution_and_tracks_the_remaining_error():
+    s = _system()
+    ref = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions())
+    assert linearization_defect(s, ref.x, ref.y) <= 1e-12 * np.sqrt(ref.x @ (s.K @ ref.x))
+
+    def energy(v):
+        return np.sqrt(v @ (s.K @ v))
+
+    seen = 0
+    for k in range(1, ref.iterations):  # iterates before convergence: defect ~ |||x_k - x*|||
+        it = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(maxit=k))
+        true, est = energy(it.x - ref.x), linearization_defect(s, it.x, it.y)
+        if true > 1e-12:
+            seen += 1
+            assert 0.1 * true <= est <= 10 * true, (k, true, est)
+    assert seen >= 1
+
+
+def test_balanced_stop_saves_newton_steps_without_moving_the_error():
+    """test 1 (degenerate band u1 - u2 < 1e-12 around r = R), nested levels: the residual stop needs
+    3-4 steps per level to settle ~1e-9 gaps; the balanced stop takes 1-2 and the energy error agrees to
+    1e-6 relative (gamma = 1e-3: the linearization error is 1e-3 of the discretization proxy)."""
+    from ngcontact.runner import RunOptions, run_scene
+    from ngcontact.scenes import load_scene
+
+    scene = load_scene("test1")
+    runs = {stop: run_scene(scene, RunOptions(levels=5, newton_stop=stop)) for stop in ("residual", "balanced")}
+    its = {stop: [r["newton_its"] for r in run.rows] for stop, run in runs.items()}
+    assert its["balanced"][0] == its["residual"][0]  # level 0: cold start, no reference, residual stop
+    assert all(b <= a for a, b in zip(its["residual"], its["balanced"]))
+    assert sum(its["balanced"][1:]) < sum(its["residual"][1:])
+    bal = runs["balanced"].rows
+    assert any(r["newton_balanced"] for r in bal) and all(r["newton_converged"] for r in bal)
+    for a, b in zip(runs["residual"].rows, bal):
+        assert abs(a["err_energy"] - b["err_energy"]) <= 1e-6 * a["err_energy"]
+        if b["newton_balanced"]:
+            assert b["eps_lin_final"] <= 1e-3 * b["eps_disc_final"]
+
+
+def test_balanced_stop_option_errors_name_the_field():
+    from ngcontact.runner import RunOptions
+
+    with pytest.raises(ValueError, match="newton_stop"):
+        RunOptions(newton_stop="energy")
+    with pytest.raises(ValueError, match="newton_stop"):
+        RunOptions(newton_stop="balanced", newton="adaptive")
+    with pytest.raises(ValueError, match="gamma_balance"):
+        RunOptions(gamma_balance=2.0)
