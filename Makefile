@@ -88,8 +88,9 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.bench_estimate --out results/bench
 
 ## estimator-study: issue 4 -- eta, error, I_eff and every estimator part per level, FEM P1/P2, cold-start
-## Newton to convergence: test1, test2 (T0..T4), disk and disk_fitted (4 levels) -> results/estimators/TABLES.md
-EST_RUNS := $(foreach s,test1 test2,$(foreach p,1 2,results/estimators/runs/$(s).p$(p).L5)) \
+## Newton to convergence: test1, test2 (T0..T4), test2_fitted (5 levels), disk and disk_fitted (4 levels)
+## -> results/estimators/TABLES.md
+EST_RUNS := $(foreach s,test1 test2 test2_fitted,$(foreach p,1 2,results/estimators/runs/$(s).p$(p).L5)) \
             $(foreach s,disk disk_fitted,$(foreach p,1 2,results/estimators/runs/$(s).p$(p).L4))
 .PHONY: estimator-study
 estimator-study: $(EST_RUNS)

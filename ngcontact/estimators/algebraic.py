@@ -49,7 +49,7 @@ from typing import List, Optional
 import numpy as np
 from ngsolve import H1, GridFunction, LinearForm, TRIG, dx, grad
 
-from .flux import _vertex_moment_term, _vertex_rule, disc_cache, equilibrate
+from .flux import _vertex_moment_term, _vertex_rule, disc_cache, equilibrate, patch_regularization
 from ..domains import DIRICHLET
 
 __all__ = ["algebraic_flux", "algebraic_correction_norm", "eta_alg_of"]
@@ -82,7 +82,7 @@ def _field_functions(disc, dx_alg: np.ndarray) -> List[GridFunction]:
 
 
 def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
-                   regularization: float = 1e-12) -> List[GridFunction]:
+                   regularization: Optional[float] = None) -> List[GridFunction]:
     """sigma_alg,alpha for the correction ``dx_alg`` = x^{k,i+nu} - x^{k,i} (module docstring).
 
     Parameters
@@ -114,7 +114,8 @@ def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
 
         def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
             return -term(w) * dx(intrules=rule)
-        sig.append(equilibrate(mesh, d, mu, q, source, hessian=p > 1, regularization=regularization,
+        sig.append(equilibrate(mesh, d, mu, q, source, hessian=p > 1,
+                               regularization=patch_regularization(disc, regularization),
                                bonus_intorder=4 if (p > 1 and getattr(disc.problem.domain, "curved", False)) else 0,
                                name=f"sigma_alg_{a_name(disc, len(sig))}"))
     return sig

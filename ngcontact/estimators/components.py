@@ -107,7 +107,7 @@ from ..cfunctions import get_cfunction
 from .estimators import (QuadratureArrays, _P0Dual, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
 from .flux import (ContactMultiplier, PatchContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules,
-                   disc_cache, equilibrate, field_data, vertex_moments)
+                   disc_cache, equilibrate, field_data, patch_regularization, vertex_moments)
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
            "newton_iterates", "plot_components_history", "ComponentsHistory"]
@@ -257,7 +257,7 @@ def admissible_correction(disc, gap_s, ggap_s, dxq, exact_polynomial_gap: bool):
 
 def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=None,
                         errors: bool = False, dirichlet_correction=True, friedrichs: Optional[float] = None,
-                        bonus_intorder: Optional[int] = None, regularization: float = 1e-12,
+                        bonus_intorder: Optional[int] = None, regularization: Optional[float] = None,
                         res_tol: float = 1e-12) -> Components:
     """eta_disc, eta_lin, eta_alg of an arbitrary iterate X^{k,i} (seed Corollary; module docstring).
 
@@ -363,7 +363,8 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
                 out += -mterm * w * mass_dx
             return out
         sig_d.append(equilibrate(mesh, fd.u, fd.mu, q, source, bonus_intorder=fbonus,
-                                 regularization=regularization, hessian=p > 1, name=f"sigma_disc_{fd.name}"))
+                                 regularization=patch_regularization(disc, regularization), hessian=p > 1,
+                                 name=f"sigma_disc_{fd.name}"))
     t_flux = time.perf_counter() - t_flux
 
     bonus = disc.quad_bonus + 4 if bonus_intorder is None else int(bonus_intorder)
