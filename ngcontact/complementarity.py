@@ -127,6 +127,9 @@ class ComplementaritySystem:
             return None
         return S.tocsr(), alpha
 
+    #: projected Jacobi sweeps (damping) of :meth:`warm_start` for one-sided systems
+    WARM_SWEEPS, WARM_OMEGA = 5, 2.0 / 3.0
+
     def warm_start(self, x0: np.ndarray, y0: np.ndarray):
         """Nested-iteration start (x, y) from an interpolated coarser solution (x0, y0).
 
@@ -143,12 +146,23 @@ class ComplementaritySystem:
         c g <= y_res, c = diag(K)/D.  Measured on ex9 (N = 256 from 128):
         218 -> 8 misclassified first-step nodes, Newton 4 -> 2 iterations;
         the converged solution is the same (finite termination).
+
+        When every row is one-sided, ``WARM_SWEEPS`` damped projected Jacobi sweeps
+        x <- max(b, x + omega diag(K)^-1 (F - K x)) (on the constrained unknowns) first
+        smooth the interpolation error next to the free boundary (one SpMV each):
+        ex9, N = 1024 from 512: 92 -> 60 rows changed by the first step and Newton
+        3 -> 2 iterations (0.13 s for the sweeps); N = 256: 8 -> 4 changed rows.
         """
         x = np.array(x0, dtype=float)
         y = np.array(y0, dtype=float)
         one = self.lo < 0
         if not one.any():
             return x, y
+        if one.all() and self.WARM_SWEEPS:
+            dK = self.K.diagonal()
+            for _ in range(self.WARM_SWEEPS):
+                x += self.WARM_OMEGA * (self.F - self.K @ x) / dK
+                x[self.up] = np.maximum(x[self.up], self.b)
         g = self.gap(x)
         rows = np.flatnonzero(one & (g < 0))
         x[self.up[rows]] -= g[rows]  # projection: g = 0 there
