@@ -39,6 +39,7 @@ SWEEP = {
     "lshape": dict(levels={1: 5, 2: 4, 3: 3}, estimate_uniform=True, max_ndof=80000, max_time=400),
     "test1": dict(levels={1: 8, 2: 5, 3: 4}, estimate_uniform=False, max_ndof=20000, max_time=120),
     "disk": dict(levels={1: 5, 2: 4, 3: 4}, estimate_uniform=False, max_ndof=20000, max_time=120),
+    "disk_fitted": dict(levels={1: 5, 2: 4, 3: 4}, estimate_uniform=False, max_ndof=20000, max_time=120),
     "point_load": dict(levels={1: 4, 2: 3, 3: 3}, estimate_uniform=True, max_ndof=15000, max_time=100),
 }
 ORDERS = (1, 2, 3)

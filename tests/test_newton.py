@@ -76,9 +76,10 @@ def test_bad_options_are_rejected(bad):
         NewtonOptions(**bad)
 
 
-def test_linearization_defect_vanishes_at_the_solution_and_tracks_the_remaining_error():
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_linearization_defect_vanishes_at_the_solution_and_tracks_the_remaining_error(cfun):
     s = _system()
-    ref = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions())
+    ref = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun))
     assert linearization_defect(s, ref.x, ref.y) <= 1e-12 * np.sqrt(ref.x @ (s.K @ ref.x))
 
     def energy(v):
@@ -86,11 +87,13 @@ def test_linearization_defect_vanishes_at_the_solution_and_tracks_the_remaining_
 
     seen = 0
     for k in range(1, ref.iterations):  # iterates before convergence: defect ~ |||x_k - x*|||
-        it = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(maxit=k))
+        it = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun, maxit=k))
         true, est = energy(it.x - ref.x), linearization_defect(s, it.x, it.y)
-        if true > 1e-12:
-            seen += 1
-            assert 0.1 * true <= est <= 10 * true, (k, true, est)
+        if true > 1e-12:  # never far below the true error (that would stop too early); above it only
+            seen += 1     # where a damped FB step leaves a linear residual (diagonal scaling: 5-10x)
+            assert 0.1 * true <= est, (k, true, est)
+            if it.history[-1].step == 1.0:
+                assert est <= 10 * true, (k, true, est)
     assert seen >= 1
 
 
