@@ -67,7 +67,8 @@ inexact-study: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.inexact results/inexact
 
 ## sweep: issue 6 -- uniform vs adaptive (Doerfler 0.5, bisection, warm start) FEM P1..P3 on lshape, test1,
-## disk, disk_fitted, point_load; one independent target per run (`make -j2 sweep`); entries: ngcontact/report.py SWEEP.
+## disk, disk_fitted, point_load; one independent target per run (`make -j2 sweep`; each run uses one NGSolve
+## thread, so parallel runs do not distort each other's times); entries: ngcontact/report.py SWEEP.
 ## report: reads only the sweep's CSVs -> results/REPORT.md + results/report/*.png
 SWEEP_RUNS := $(foreach s,lshape test1 disk disk_fitted point_load,$(foreach m,uniform adaptive,$(foreach p,1 2 3,results/sweep/runs/$(s)-$(m)-p$(p))))
 .PHONY: sweep report

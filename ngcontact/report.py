@@ -43,6 +43,7 @@ SWEEP = {
     "point_load": dict(levels={1: 4, 2: 3, 3: 3}, estimate_uniform=True, max_ndof=15000, max_time=100),
 }
 ORDERS = (1, 2, 3)
+SWEEP_THREADS = 1  # NGSolve threads per sweep run (see main)
 MODES = ("uniform", "adaptive")
 TARGETS = (1e-3, 1e-4, 1e-5)
 
@@ -150,7 +151,9 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
           "* rates: least-squares slope of log(quantity) against log(ndof) over the last 4 levels "
           "(optimal P_p: -p/2);",
           "* time to reach an error: log-log interpolation between the two levels bracketing it; "
-          "'--' = not reached by the run's finest level (no extrapolation).", ""]
+          "'--' = not reached by the run's finest level (no extrapolation);",
+          f"* every run uses {SWEEP_THREADS} NGSolve thread(s), so that times are comparable whether the sweep "
+          "ran sequentially or with `make -j2 sweep`.", ""]
     if missing:
         md += [f"**Missing runs** (not in {runs_dir}): {', '.join(missing)}", ""]
     colors = {1: "C0", 2: "C1", 3: "C2"}
@@ -266,7 +269,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
             md.append(f"* lshape {m} P{p}: estimator slope {sh:.2f} vs optimal {-p / 2:.2f} -> {verdict}"
                       f" (error slope {se:.2f})")
     md.append("")
-    for scene in ("test1", "disk"):
+    for scene in ("test1", "disk", "disk_fitted"):
         base = [tt for s, m, p, tt in tta_rows if s == scene and m == "uniform" and p == 1]
         best = [(tt[1], p) for s, m, p, tt in tta_rows if s == scene and m == "adaptive" and p >= 2
                 and np.isfinite(tt[1])]
@@ -297,8 +300,15 @@ def main(argv=None) -> int:
         print(" ".join(sweep_names()))
         return 0
     if argv[:1] == ["run"] and len(argv) == 3:  # run NAME OUTDIR
+        from ngsolve import SetNumThreads
+
         from .cli import main as cli_main
 
+        # one NGSolve thread per sweep run, so that every run is timed alike whether the sweep runs
+        # sequentially or as `make -j2 sweep` (two single-threaded runs on two cores): with NGSolve's
+        # default (all cores) two parallel runs oversubscribe the cores with spinning task threads and
+        # their times grow up to 6x (test1 adaptive P3: 18.8 s in a -j2 sweep, 3.2 s alone)
+        SetNumThreads(SWEEP_THREADS)
         return cli_main(["run", *sweep_argv(argv[1]), "-q", "--out", argv[2]])
     if argv[:1] == ["report"] and len(argv) == 4:  # report RUNS_DIR OUT_MD FIG_DIR
         print(write_report(*argv[1:]))
