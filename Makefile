@@ -40,7 +40,7 @@ fem-study: $(FEM_RUNS)
 	$(PY) -m ngcontact plot $(filter results/fem/test2-%-nested,$(FEM_RUNS)) --out results/fem/test2.png --title "test2 [CAMWA21], FEM"
 
 results/fem/%: $(STAMP)
-	$(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
 	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@
 
 ## compare: issue 3 study -- FEM vs HHO (SC / no SC) vs SIPG / NIPG on [CAMWA21] tests 1, 2,
@@ -56,7 +56,7 @@ compare: $(CMP_RUNS)
 # NIPG P3/P4 stop at T3: their general (unsymmetric) sparse LU on T4 takes 5-10 min per level on 2 cores
 cmp_levels = $(if $(filter nipg-p3 nipg-p4,$(word 2,$(subst -, ,$(1)))-$(word 3,$(subst -, ,$(1)))),4,5)
 results/compare/runs/%: $(STAMP)
-	$(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --disc $(word 2,$(subst -, ,$*)) \
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --disc $(word 2,$(subst -, ,$*)) \
 	  --order $(subst p,,$(word 3,$(subst -, ,$*))) --start $(word 4,$(subst -, ,$*)) \
 	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels $(call cmp_levels,$*) --no-vtk --no-plots -q --out $@
 
@@ -98,5 +98,5 @@ estimator-study: $(EST_RUNS)
 	$(PY) -m ngcontact table $(EST_RUNS) --out results/estimators/TABLES.md
 
 results/estimators/runs/%: $(STAMP)
-	$(PY) -m ngcontact run $(word 1,$(subst ., ,$*)) --order $(subst p,,$(word 2,$(subst ., ,$*))) \
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst ., ,$*)) --order $(subst p,,$(word 2,$(subst ., ,$*))) \
 	  --levels $(subst L,,$(word 3,$(subst ., ,$*))) --start cold --estimate --no-vtk --no-plots -q --out $@

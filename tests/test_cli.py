@@ -130,3 +130,9 @@ def test_decouple_flag_gives_the_coupled_errors(tmp_path):
         assert abs(ra["err_energy"] - rb["err_energy"]) <= 1e-10 * ra["err_energy"]
     s = json.loads((tmp_path / "decoupled" / "summary.json").read_text())
     assert s["options"]["decouple"] is True
+
+
+def test_bad_thread_setting_names_the_variable(monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("NGCONTACT_THREADS", "two")
+    assert main(["run", "test1", "--levels", "1", "--out", str(tmp_path / "o")]) == 2
+    assert "NGCONTACT_THREADS" in capsys.readouterr().err and not (tmp_path / "o").exists()
