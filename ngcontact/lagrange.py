@@ -144,7 +144,7 @@ class LagrangeNodes:
 
         # --- one MeshPoint per node (its element e_of, reference point lat[j_of] / p): coordinates and
         # data are evaluated at ndof points, not at the ne * npts points of MapToAllElements
-        # (ex9, 1.05M nodes: build 2.1 s -> see module doc; values are bitwise the same)
+        # (ex9, 1.05M nodes: build 2.1 s -> 0.9 s, three data evaluations 0.94 s -> 0.42 s; same values)
         points = meshpoints(mesh, e_of, lat[j_of, 0] / p, lat[j_of, 1] / p)
         coords = np.stack([np.asarray(x(points)).ravel(), np.asarray(y(points)).ravel()], axis=1)
 
