@@ -217,7 +217,7 @@ class _BoxDomain(Domain):
         T_j (j >= 1) carries ``ngc_parents``: an (nv_j, 2) integer array, vertex v of T_j being the
         midpoint of vertices ngc_parents[v] of T_{j-1} (a repeated index: v is that coarse vertex).
         Nested P1 prolongation reads it instead of matching coordinates
-        (``discretizations.fem._nested_p1_values``; it still checks the coordinates).
+        (``discretizations.fem._parent_p1_values``; it still checks the coordinates).
         """
         for arrays, parents in self._levels(0, _check_level(levels, "levels")):
             mesh = ngsolve.Mesh(_to_ngmesh(*arrays))

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -300,15 +301,11 @@ def main(argv=None) -> int:
         print(" ".join(sweep_names()))
         return 0
     if argv[:1] == ["run"] and len(argv) == 3:  # run NAME OUTDIR
-        from ngsolve import SetNumThreads
-
         from .cli import main as cli_main
 
-        # one NGSolve thread per sweep run, so that every run is timed alike whether the sweep runs
-        # sequentially or as `make -j2 sweep` (two single-threaded runs on two cores): with NGSolve's
-        # default (all cores) two parallel runs oversubscribe the cores with spinning task threads and
-        # their times grow up to 6x (test1 adaptive P3: 18.8 s in a -j2 sweep, 3.2 s alone)
-        SetNumThreads(SWEEP_THREADS)
+        # one NGSolve thread per sweep run (the CLI reads NGCONTACT_THREADS; see cli._apply_thread_setting),
+        # so that every run is timed alike whether the sweep runs sequentially or as `make -j2 sweep`
+        os.environ.setdefault("NGCONTACT_THREADS", str(SWEEP_THREADS))
         return cli_main(["run", *sweep_argv(argv[1]), "-q", "--out", argv[2]])
     if argv[:1] == ["report"] and len(argv) == 4:  # report RUNS_DIR OUT_MD FIG_DIR
         print(write_report(*argv[1:]))
