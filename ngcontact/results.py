@@ -54,6 +54,10 @@ time_post_s         errors and diagnostics
 eta                 guaranteed estimate of |||u - u_h||| (--estimate; [JSC20] Theorem
                     plus Dirichlet-data and quadrature terms, see ngcontact.estimators)
 eta_seed            the seed Theorem's total (bound of |||u - s~_h|||)
+eta_direct          direct bound of |||u - u~_h||| (pays eta_nonc1 once; eta uses the
+                    smaller of eta_seed + eta_nonc1 and eta_direct)
+theta_contact       Theta of the direct bound (weak form tested with the
+                    nonconformity correction)
 eta_F, eta_R        flux / residual estimators (sum over K and alpha, squared, root)
 eta_FR              (sum_a (sum_K (eta_F,K,a + eta_R,K,a)^2))^(1/2)
 eta_C               contact estimator sum_K 2 (lam_h^pos, u1h - u2h)_K
@@ -102,7 +106,7 @@ HISTORY_COLUMNS = [
     "eta_disc_final", "eta_lin_final", "eta_alg_final", "gap_min", "lam_min",
     "product_max", "time_mesh_s", "time_mark_s", "time_assembly_s", "time_prolong_s", "time_solve_s", "time_linear_s",
     "time_condense_s", "time_post_s",
-    "eta", "rate_eta", "i_eff", "eta_seed", "eta_F", "eta_R", "eta_FR", "eta_C", "eta_nonc1",
+    "eta", "rate_eta", "i_eff", "eta_seed", "eta_direct", "theta_contact", "eta_F", "eta_R", "eta_FR", "eta_C", "eta_nonc1",
     "eta_nonc2", "eta_nonc3", "eta_quad", "eta_bc", "eps_w", "eta_nonc2_seed", "time_estimate_s",
     "time_total_s", "time_cum_s",
 ]

@@ -76,7 +76,17 @@ iterates and at convergence of any C-function, so the two agree there), for p >=
 p >= 2 split.  C = C_{Omega,mu} enters through the multiplier-defect norm of
 :mod:`.estimators` (Poincare per element + RT_0 for the means), sharper than C_F ||.||.
 
-Combination (proof: :mod:`.estimators` with a = eta_FR + eta_quad + eta_nonc,2,
+Direct combination (used when its eta_disc + eta_lin is the smaller; proof: "Direct bound" of
+:mod:`.estimators`, with A = A_disc + A_lin + eta_alg, A_disc = eta_FR + eta_quad + eta_nonc2,disc +
+d_disc, A_lin = eta_nonc2,lin + d_lin, B = Theta + sum eta_C / 2 <= B_disc + B_lin,
+B_disc = max(Theta_disc + (sum eta_C - P_lin)/2, 0), B_lin = max(Theta_lin + P_lin/2, 0), Theta
+split linearly with the correction n = (s~ - s_h - w_h) + (s_h - u_h), and
+A/2 + (A^2/4 + B)^{1/2} = A/2 + |(A/2, B^{1/2})| <= the sum of the same per component):
+
+    eta_disc = hypot(A_disc/2 + hypot(A_disc/2, B_disc^{1/2}) + eps_w, eta_bc)
+    eta_lin  = A_lin/2 + hypot(A_lin/2, B_lin^{1/2}).
+
+Combination of the seed's route (proof: :mod:`.estimators` with a = eta_FR + eta_quad + eta_nonc,2,
 d = eta_nonc,1, 2P = sum eta_C + eta_nonc,3, and |||u - u_h|||^2 <=
 (hypot(a + d, sqrt(2P)) + d + eps_w)^2 + eta_bc^2; every argument splits as
 a <= a_disc + a_lin + eta_alg, d <= d_disc + d_lin, 2P <= 2P_disc + 2P_lin, and the
@@ -104,7 +114,7 @@ from ngsolve import (L2, CoefficientFunction, GridFunction, IfPos, Integrate, Ta
                      div, dx, grad)
 
 from ..cfunctions import get_cfunction
-from .estimators import (QuadratureArrays, _P0Dual, _corrected_fields, _dirichlet_lifting, _mean_term,
+from .estimators import (QuadratureArrays, _P0Dual, _contact_work, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
 from .flux import (ContactMultiplier, PatchContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules,
                    disc_cache, equilibrate, field_data, patch_regularization, vertex_moments)
@@ -197,7 +207,10 @@ def _dual_from_functional(disc, values: np.ndarray, name: str) -> GridFunction:
 
 
 def _use_p1(disc, q: int) -> bool:
-    return q <= 2
+    """Patch-constant vertex device (exact for q <= 2 on affine elements) or exact mass-rule products
+    (q >= 3, curved elements); the same choice as :func:`.flux.reconstruct_fluxes`."""
+    curved = bool(getattr(disc.problem.domain, "curved", False)) and disc.order > 1
+    return q <= 2 and not curved
 
 
 def algebraic_residual_function(disc, x, y, *, flux_order: Optional[int] = None) -> list:
@@ -474,6 +487,11 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         P_lin = 2.0 * float((D * yp * g_nodal).sum())      # discrete complementarity product
         nonc3_d = 2.0 * float(qa.integrate(lam_v * cd_v).sum())
         nonc3_l = 2.0 * float(qa.integrate(lam_v * cl_v).sum())
+        # Theta of the direct bound, split like the corrections: s~ - s_h - w_h (disc), s_h - u_h (lin)
+        zero2 = CoefficientFunction((0.0, 0.0))
+        theta_d = _contact_work(prob, fields, grads, corr_d, IfPos(-gap_s, -ggap_s, zero2), dxq) \
+            if corr_d is not None else 0.0
+        theta_l = _contact_work(prob, fields, grads, c, grad(c), dxq) if c is not None else 0.0
     # 2P = sum_C + nonc3 = (sum_C - P_lin + nonc3_d) + (P_lin + nonc3_l) <= 2P_disc + 2P_lin
     twoP_d = max(sum_C - P_lin + nonc3_d, 0.0)
     twoP_l = max(P_lin + nonc3_l, 0.0)
@@ -481,6 +499,15 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
     E_d = math.hypot(eta_FR + eta_quad + nonc2_d + d_d, math.sqrt(twoP_d))
     eta_disc = math.hypot(E_d + d_d + eps_w, eta_bc)
     eta_lin = math.hypot(nonc2_l + d_l, math.sqrt(twoP_l)) + d_l
+    # direct bound (module docstring): f(A, B) = A/2 + hypot(A/2, sqrt(B)) per component
+    A_d, A_l = eta_FR + eta_quad + nonc2_d + d_d, nonc2_l + d_l
+    B_d = max(theta_d + 0.5 * (sum_C - P_lin), 0.0)
+    B_l = max(theta_l + 0.5 * P_lin, 0.0)
+    disc_direct = math.hypot(0.5 * A_d + math.hypot(0.5 * A_d, math.sqrt(B_d)) + eps_w, eta_bc)
+    lin_direct = 0.5 * A_l + math.hypot(0.5 * A_l, math.sqrt(B_l))
+    direct = disc_direct + lin_direct < eta_disc + eta_lin
+    if direct:
+        eta_disc, eta_lin = disc_direct, lin_direct
     eta = eta_disc + eta_lin + eta_alg
     eta_K = np.sqrt(((eta_F + eta_R) ** 2).sum(axis=0) + np.maximum(eta_C, 0.0))
     terms = {"eta_FR_disc": eta_FR, "eta_F_disc": float(np.sqrt((eta_F ** 2).sum())),
@@ -488,7 +515,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
              "eta_C": sum_C, "P_lin": P_lin, "nonc1_disc": d_d, "nonc1_lin": d_l,
              "nonc2_disc": nonc2_d, "nonc2_lin": nonc2_l, "nonc3_disc": nonc3_d, "nonc3_lin": nonc3_l,
              "eta_bc": eta_bc, "eps_w": eps_w, "alg_flux": alg_flux, "alg_res": alg_loc + alg_mean,
-             "time_flux_s": t_flux}
+             "theta_disc": theta_d, "theta_lin": theta_l, "direct": float(direct), "time_flux_s": t_flux}
     t_total = time.perf_counter() - t0
     err = None
     if errors and prob.exact is not None:
