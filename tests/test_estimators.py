@@ -44,10 +44,9 @@ def study(scene_name, p):
 
 CASES = sorted(LEVELS)
 
-#: the two structural checks below are exact on straight interior edges; disk_fitted at p = 2 has
-#: curved interior edges (the interface r = rho is curved with the mesh), where sigma . n is not a
-#: polynomial in the edge parameter and these L2 checks measure 2.6e-7 / 6.2e-8 on level 2 (checked by
-#: the guaranteed-bound test instead)
+#: the equilibration check below is exact on straight elements; disk_fitted and test2_fitted at p = 2
+#: have curved interior elements (the interface is curved with the mesh), where div sigma is not a mapped
+#: polynomial: the moment defect is 2e-5 .. 3e-7 there (geometry, checked by the guaranteed bound instead)
 STRAIGHT_INTERIOR = [c for c in CASES if c not in (("disk_fitted", 2), ("test2_fitted", 2))]
 
 
@@ -59,9 +58,11 @@ def test_equilibration(scene, p):
         assert max(v["max_K"] for v in row["eq"].values()) <= 1e-10, row["level"]
 
 
-@pytest.mark.parametrize("scene,p", STRAIGHT_INTERIOR)
+@pytest.mark.parametrize("scene,p", CASES)
 def test_normal_continuity(scene, p):
-    """The sum of the patch fluxes is in H(div): relative normal jumps at round-off."""
+    """The sum of the patch fluxes is in H(div): relative normal jumps at round-off, also on curved meshes
+    (the batched patch solver solves the eps -> 0 limit exactly; PatchwiseSolve with eps = 1e-10 left
+    jumps of 2e-10 .. 7e-10 there)."""
     for row in study(scene, p):
         assert max(row["jump"].values()) <= 1e-12, row["level"]
 

@@ -49,7 +49,8 @@ from typing import List, Optional
 import numpy as np
 from ngsolve import H1, GridFunction, LinearForm, TRIG, dx, grad
 
-from .flux import _vertex_moment_term, _vertex_rule, disc_cache, equilibrate, patch_regularization
+from .flux import (PatchData, _vertex_moment_term, _vertex_rule, disc_cache, equilibrate_all, patch_regularization,
+                   patch_solver)
 from ..domains import DIRICHLET
 
 __all__ = ["algebraic_flux", "algebraic_correction_norm", "eta_alg_of"]
@@ -82,7 +83,7 @@ def _field_functions(disc, dx_alg: np.ndarray) -> List[GridFunction]:
 
 
 def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
-                   regularization: Optional[float] = None) -> List[GridFunction]:
+                   regularization: Optional[float] = None, batched: bool = True) -> List[GridFunction]:
     """sigma_alg,alpha for the correction ``dx_alg`` = x^{k,i+nu} - x^{k,i} (module docstring).
 
     Parameters
@@ -92,6 +93,8 @@ def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
         x-block (all fields, interior nodes) of X^{k,i+nu} - X^{k,i}.
     order : int, optional
         RT degree q (default p; q <= 2).
+    regularization, batched
+        as in :func:`.flux.reconstruct_fluxes` (batched: the patch solver cached per discretization).
 
     Returns
     -------
@@ -105,7 +108,7 @@ def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
     mesh = disc.mesh
     ds = _field_functions(disc, np.asarray(dx_alg, dtype=float))
     V1, v, free, vol, rule = _p1_data(disc)
-    sig = []
+    data = []
     for d, mu in zip(ds, disc.problem.mus):
         mom = LinearForm(mu * grad(d) * grad(v) * dx).Assemble().vec.FV().NumPy()  # small: no TaskManager
         g = GridFunction(V1, name="g_alg")
@@ -114,11 +117,11 @@ def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
 
         def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
             return -term(w) * dx(intrules=rule)
-        sig.append(equilibrate(mesh, d, mu, q, source, hessian=p > 1,
-                               regularization=patch_regularization(disc, regularization),
-                               bonus_intorder=4 if (p > 1 and getattr(disc.problem.domain, "curved", False)) else 0,
-                               name=f"sigma_alg_{a_name(disc, len(sig))}"))
-    return sig
+        data.append(PatchData(u=d, mu=mu, source=source, hessian=p > 1,
+                              bonus_intorder=4 if (p > 1 and getattr(disc.problem.domain, "curved", False)) else 0,
+                              name=f"sigma_alg_{a_name(disc, len(data))}"))
+    return equilibrate_all(mesh, q, data, regularization=patch_regularization(disc, regularization),
+                           solver=patch_solver(disc, q) if batched else None)
 
 
 def a_name(disc, i: int) -> str:

@@ -116,8 +116,9 @@ from ngsolve import (L2, CoefficientFunction, GridFunction, IfPos, Integrate, Ta
 from ..cfunctions import get_cfunction
 from .estimators import (QuadratureArrays, _P0Dual, _contact_work, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
-from .flux import (ContactMultiplier, PatchContactMultiplier, _vertex_moment_term, _vertex_rule, data_rules,
-                   disc_cache, equilibrate, field_data, patch_regularization, vertex_moments)
+from .flux import (ContactMultiplier, PatchContactMultiplier, PatchData, _vertex_moment_term, _vertex_rule,
+                   data_rules, disc_cache, equilibrate_all, field_data, patch_regularization, patch_solver,
+                   vertex_moments)
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
            "newton_iterates", "plot_components_history", "ComponentsHistory"]
@@ -271,7 +272,7 @@ def admissible_correction(disc, gap_s, ggap_s, dxq, exact_polynomial_gap: bool):
 def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=None,
                         errors: bool = False, dirichlet_correction=True, friedrichs: Optional[float] = None,
                         bonus_intorder: Optional[int] = None, regularization: Optional[float] = None,
-                        res_tol: float = 1e-12) -> Components:
+                        res_tol: float = 1e-12, batched: bool = True) -> Components:
     """eta_disc, eta_lin, eta_alg of an arbitrary iterate X^{k,i} (seed Corollary; module docstring).
 
     Parameters
@@ -301,6 +302,9 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         as in :func:`.estimators.estimate`.
     res_tol : float
         relative residual below which an exact solve is assumed when r_alg is None.
+    batched : bool
+        batched patch solver (default; its setup is cached per discretization and reused by
+        every iterate) or NGSolve's PatchwiseSolve (:func:`.flux.equilibrate_all`).
 
     Returns
     -------
@@ -352,7 +356,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
     fbonus = 4 if curved else 0
     rules = data_rules(disc)
     vertex_dx, mass_dx = dx(intrules={TRIG: _vertex_rule()}), dx(intrules=rules["mass"])
-    sig_d, data = [], []
+    sig_d, data, patch_data = [], [], []
     t_flux = time.perf_counter()
     for a, fd in enumerate(fields):
         # m_alpha = s_alpha lam^ - r^_alpha; P1 functions by the patch-constant vertex device
@@ -375,9 +379,10 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
             if mterm is not None:
                 out += -mterm * w * mass_dx
             return out
-        sig_d.append(equilibrate(mesh, fd.u, fd.mu, q, source, bonus_intorder=fbonus,
-                                 regularization=patch_regularization(disc, regularization), hessian=p > 1,
-                                 name=f"sigma_disc_{fd.name}"))
+        patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=fbonus,
+                                    name=f"sigma_disc_{fd.name}"))
+    sig_d = equilibrate_all(mesh, q, patch_data, regularization=patch_regularization(disc, regularization),
+                            solver=patch_solver(disc, q) if batched else None)
     t_flux = time.perf_counter() - t_flux
 
     bonus = disc.quad_bonus + 4 if bonus_intorder is None else int(bonus_intorder)

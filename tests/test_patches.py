@@ -1,0 +1,62 @@
+"""The batched patch solver (ngcontact.estimators.patches) against NGSolve's PatchwiseSolve."""
+import numpy as np
+import pytest
+from ngsolve import Integrate, dx, sqrt
+
+from ngcontact.discretizations.fem import FEMDiscretization
+from ngcontact.estimators import normal_jump, reconstruct_fluxes
+from ngcontact.estimators.flux import patch_solver
+from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.scenes import load_scene
+
+
+def _solved(scene_name, p, level):
+    scene = load_scene(scene_name)
+    mesh = list(scene.problem.domain.meshes(level + 1))[-1]
+    disc = FEMDiscretization(scene.problem, mesh, order=p)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    assert sol.converged
+    return disc, sol
+
+
+@pytest.mark.parametrize("scene,p,level", [("disk", 1, 1), ("test1", 2, 1), ("test1", 3, 1), ("lshape", 2, 1),
+                                           ("ex9_obstacle", 1, 1)])
+def test_batched_equals_patchwise_solve(scene, p, level):
+    """Same fluxes as PatchwiseSolve (interior and boundary patches, obstacle and membranes, RT_1..RT_3)."""
+    disc, sol = _solved(scene, p, level)
+    ref = reconstruct_fluxes(disc, sol.x, sol.y, batched=False)
+    new = reconstruct_fluxes(disc, sol.x, sol.y, batched=True)
+    mesh = disc.mesh
+    for s_ref, s_new in zip(ref.sigma, new.sigma):
+        diff = sqrt(Integrate((s_ref - s_new) ** 2 * dx, mesh))
+        norm = sqrt(Integrate(s_ref ** 2 * dx, mesh))
+        assert diff <= 1e-10 * norm, (diff, norm)
+    assert max(normal_jump(new).values()) <= 1e-12
+
+
+def test_batched_solver_is_cached_and_exact_on_curved_meshes():
+    """One solver per discretization and RT degree; on curved elements (disk_fitted P2) the eps -> 0 limit
+    keeps the normal jumps at round-off (PatchwiseSolve with eps = 1e-10: ~1e-9)."""
+    disc, sol = _solved("disk_fitted", 2, 1)
+    assert patch_solver(disc, 2) is patch_solver(disc, 2)
+    new = reconstruct_fluxes(disc, sol.x, sol.y)
+    ref = reconstruct_fluxes(disc, sol.x, sol.y, batched=False)
+    assert max(normal_jump(new).values()) <= 1e-12
+    assert max(normal_jump(ref).values()) > 1e-11  # the regularized solve is visibly less exact there
+    for s_ref, s_new in zip(ref.sigma, new.sigma):
+        diff = sqrt(Integrate((s_ref - s_new) ** 2 * dx, disc.mesh))
+        assert diff <= 1e-6 * sqrt(Integrate(s_ref ** 2 * dx, disc.mesh))
+
+
+def test_solve_several_right_hand_sides_at_once():
+    """solve() with a list of right-hand sides equals one call per right-hand side."""
+    from ngcontact.estimators.flux import PatchData, _patch_rhs, _times
+
+    disc, sol = _solved("test1", 1, 0)
+    S = patch_solver(disc, 1)
+    gfs = disc.gridfunctions(sol.x, sol.y)
+    lfs = [_patch_rhs(S.X, PatchData(u=gfs[name], mu=1.0, hessian=False)) for name in ("u1", "u2")]
+    both = S.solve([lambda hat, lf=lf: _times(hat, lf) for lf in lfs])
+    for lf, c in zip(lfs, both):
+        one = S.solve([lambda hat: _times(hat, lf)])[0]
+        assert np.allclose(one, c, rtol=0, atol=1e-14 * max(np.abs(c).max(), 1.0))
