@@ -55,7 +55,7 @@ def test_solve_several_right_hand_sides_at_once():
     disc, sol = _solved("test1", 1, 0)
     S = patch_solver(disc, 1)
     gfs = disc.gridfunctions(sol.x, sol.y)
-    lfs = [_patch_rhs(S.X, PatchData(u=gfs[name], mu=1.0, hessian=False)) for name in ("u1", "u2")]
+    lfs = [_patch_rhs(S.Y, PatchData(u=gfs[name], mu=1.0, hessian=False)) for name in ("u1", "u2")]
     both = S.solve([lambda hat, lf=lf: _times(hat, lf) for lf in lfs])
     for lf, c in zip(lfs, both):
         one = S.solve([lambda hat: _times(hat, lf)])[0]

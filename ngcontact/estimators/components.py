@@ -484,9 +484,10 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         qa = QuadratureArrays(mesh, 2 * p + 6)
         lam_v, gap_v = qa.values(lam_t), qa.values(gap)
         cd_v, cl_v = qa.values(corr_d), qa.values(c)
-        lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + cd_v + cl_v, h, C_mu,
-                                              eta_FR + eta_quad + nonc2_d + nonc2_l + 2.0 * (d_d + d_l))
-        nonc2_d += C_mu * math.sqrt(float(loc2.sum()))
+        if p >= 2:  # as in estimate(): never changed anything for p = 1
+            lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + cd_v + cl_v, h, C_mu,
+                                                  eta_FR + eta_quad + nonc2_d + nonc2_l + 2.0 * (d_d + d_l))
+            nonc2_d += C_mu * math.sqrt(float(loc2.sum()))
         eta_C = 2.0 * qa.integrate(lam_v * gap_v)          # eta_C,K = 2 (lam~, g_h)_K
         sum_C = float(eta_C.sum())
         P_lin = 2.0 * float((D * yp * g_nodal).sum())      # discrete complementarity product

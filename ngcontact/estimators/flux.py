@@ -511,7 +511,7 @@ def _patch_rhs(X, d: PatchData):
     (s, tau) - (r, div tau) + <tau.n, m> = -(psi_a mu grad u, tau)   [mu constant]
     -(div s, w) - eps (r, w) = -(psi_a g, w) + (mu grad psi_a . grad u, w), with
     (grad psi_a . grad u, w)_K = -(psi_a, Lap u w + grad u . grad w)_K + <psi_a grad u . n, w>_dK."""
-    tau, w, _ = X.TestFunction()
+    tau, w = X.TestFunction()[:2]  # X = V x Q x F (PatchwiseSolve) or V x Q (batched: no facet rows)
     n = specialcf.normal(2)
     mu, gu = d.mu, grad(d.u)
     lap = Trace(d.u.Operator("hesse")) if d.hessian else CoefficientFunction(0.0)
@@ -536,11 +536,10 @@ def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver
     """
     out = []
     if solver is not None:
-        X = solver.X
-        lfs = [_patch_rhs(X, d) for d in data]
+        lfs = [_patch_rhs(solver.Y, d) for d in data]
         coefs = solver.solve([lambda hat, lf=lf: _times(hat, lf) for lf in lfs])
         for d, c in zip(data, coefs):
-            sig = GridFunction(X.components[0], name=d.name)
+            sig = GridFunction(solver.X.components[0], name=d.name)
             sig.vec.FV().NumPy()[:] = c.ravel()
             out.append(sig)
         return out

@@ -68,6 +68,7 @@ class PatchSolver:
     def __init__(self, mesh, X, bf, ev):
         self.mesh, self.X, self.ev = mesh, X, ev
         V, Q, F = X.components
+        self.Y = V * Q  # right-hand sides: the facet rows are zero
         zf = GridFunction(F)
         zf.Set(CoefficientFunction(1.0), dual=True)                # facet vector of the constant 1
         z_glob = np.concatenate([np.zeros(V.ndof + Q.ndof), np.round(zf.vec.FV().NumPy(), 12)])
@@ -190,8 +191,8 @@ class PatchSolver:
         Parameters
         ----------
         lfs : list of callable
-            per field: hat (CoefficientFunction) -> SumOfIntegrals of the right-hand side on X with
-            every integrand multiplied by hat.
+            per field: hat (CoefficientFunction) -> SumOfIntegrals of the right-hand side on
+            ``self.Y`` = V x Q (test functions of Y) with every integrand multiplied by hat.
 
         Returns
         -------
@@ -204,7 +205,7 @@ class PatchSolver:
         with TaskManager():
             for f, lf_of_hat in enumerate(lfs):
                 for i, hat in enumerate(self.hats):
-                    form = LinearForm(self.X)
+                    form = LinearForm(self.Y)
                     form += lf_of_hat(hat)
                     vec = form.Assemble().vec.FV().NumPy()
                     b[f, i, :, :nV] = vec[:self.offQ].reshape(ne, nV)
