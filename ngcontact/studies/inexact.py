@@ -18,8 +18,8 @@ carry the counters):
 * P1, finest mesh: adaptive with (gamma_alg, gamma_lin) in {0.3, 0.03}^2;
 * P2: the same three modes on the P2 meshes;
 * P2 on the same meshes fitted to r = 1/sqrt 2 (``disk_fitted``): direct, inexact and adaptive
-  (on the unfitted meshes the jump of f inside elements makes the P2 estimator ~3.7 x the error,
-  so the adaptive stopping rules stop early; on the fitted ones I_eff is 1.05-1.15);
+  (on the unfitted meshes the jump of f inside elements makes the P2 estimator ~3.2 x the error,
+  so the adaptive stopping rules stop early; on the fitted ones I_eff is 1.03-1.19);
 * P1, the ~8k mesh: exact-gmres and inexact with the estimators evaluated after
   every Newton step (``log_estimators``) for the plot "estimators vs Newton
   iteration" (those evaluations are diagnostics, not part of the run time).
@@ -209,7 +209,7 @@ def _tables(rows, logs, out):
         if not meshes:
             continue
         title = ("P2 on meshes fitted to the contact boundary r = 1/sqrt 2 (`disk_fitted`; the P2 estimator is "
-                 "sharp there: I_eff 1.06-1.19 from level 1, `results/estimators/TABLES.md`)" if order == "2f" else f"P{order}")
+                 "sharp there: I_eff 1.03-1.19 on every level, `results/estimators/TABLES.md`)" if order == "2f" else f"P{order}")
         L += [f"## {title}: Newton / GMRES iterations, energy error, time per mesh", "",
               "| elements | ndof | mode | Newton | GMRES total | GMRES accepted | GMRES 1st step | energy error "
               "| err / err(direct) | eta_disc | eta_lin | eta_alg | solve [s] | of which estimators [s] |",
