@@ -21,10 +21,10 @@ by default with the batched solver of :mod:`.patches` (element condensation
 once per mesh, patch systems on the facet unknowns only, all fields in one
 call; cached per discretization, :func:`patch_solver`), or with NGSolve's
 compiled patch loop ``PatchwiseSolve`` (``batched=False``; same fluxes to
-round-off on straight meshes).  Measured (disk, 35k vertices, both fields):
-P1 3.4 s either way for a first estimate, 1.9 s for every further one with the
-cached solver; P2 (17k elements) 3.4 s -> 3.4 s / 2.3 s; P3 (test 1, 4k elements)
-1.55 s -> 1.28 s / 0.61 s.
+round-off on straight meshes).  Measured flux time, both fields (PatchwiseSolve
+-> batched first call / later calls with the cached solver): disk P1, 35k
+vertices, 3.3 s -> 3.1 s / 1.7 s; disk P2, 17k elements, 3.4 s -> 3.4 s / 2.3 s;
+test 1 P3, 4k elements, 1.55 s -> 1.28 s / 0.61 s.
 
 The multiplier seen by the patches.  Compatibility of an interior patch is
 the discrete equation tested with psi_a,
