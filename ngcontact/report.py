@@ -37,7 +37,7 @@ __all__ = ["SWEEP", "sweep_names", "sweep_argv", "time_to_reach", "fitted_slope"
 
 #: per scene: uniform levels per degree, whether uniform runs compute eta, adaptive DOF and time budgets
 SWEEP = {
-    "lshape": dict(levels={1: 5, 2: 4, 3: 3}, estimate_uniform=True, max_ndof=80000, max_time=400),
+    "lshape": dict(levels={1: 5, 2: 4, 3: 3}, estimate_uniform=True, max_ndof=200000, max_time=400),
     "test1": dict(levels={1: 8, 2: 5, 3: 4}, estimate_uniform=False, max_ndof=20000, max_time=120),
     "disk": dict(levels={1: 5, 2: 4, 3: 4}, estimate_uniform=False, max_ndof=20000, max_time=120),
     "disk_fitted": dict(levels={1: 5, 2: 4, 3: 4}, estimate_uniform=False, max_ndof=20000, max_time=120),
