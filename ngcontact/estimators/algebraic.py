@@ -49,8 +49,8 @@ from typing import List, Optional
 import numpy as np
 from ngsolve import H1, GridFunction, LinearForm, TRIG, dx, grad
 
-from .flux import (PatchData, _vertex_moment_term, _vertex_rule, disc_cache, equilibrate_all, patch_regularization,
-                   patch_solver)
+from .flux import (PatchData, _vertex_moment_term, _vertex_rule, disc_cache, equilibrate_all, is_curved,
+                   patch_regularization, patch_solver)
 from ..domains import DIRICHLET
 
 __all__ = ["algebraic_flux", "algebraic_correction_norm", "eta_alg_of"]
@@ -118,7 +118,7 @@ def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
         def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
             return -term(w) * dx(intrules=rule)
         data.append(PatchData(u=d, mu=mu, source=source, hessian=p > 1,
-                              bonus_intorder=4 if (p > 1 and getattr(disc.problem.domain, "curved", False)) else 0,
+                              bonus_intorder=4 if is_curved(disc) else 0,
                               name=f"sigma_alg_{a_name(disc, len(data))}"))
     return equilibrate_all(mesh, q, data, regularization=patch_regularization(disc, regularization),
                            solver=patch_solver(disc, q) if batched else None)

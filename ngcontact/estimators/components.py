@@ -117,8 +117,8 @@ from ..cfunctions import get_cfunction
 from .estimators import (QuadratureArrays, _P0Dual, _contact_work, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
 from .flux import (ContactMultiplier, PatchContactMultiplier, PatchData, _vertex_moment_term, _vertex_rule,
-                   data_rules, disc_cache, equilibrate_all, field_data, patch_regularization, patch_solver,
-                   vertex_moments)
+                   data_rules, disc_cache, equilibrate_all, field_data, is_curved, patch_regularization,
+                   patch_solver, vertex_device_exact, vertex_moments)
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
            "newton_iterates", "plot_components_history", "ComponentsHistory"]
@@ -208,10 +208,8 @@ def _dual_from_functional(disc, values: np.ndarray, name: str) -> GridFunction:
 
 
 def _use_p1(disc, q: int) -> bool:
-    """Patch-constant vertex device (exact for q <= 2 on affine elements) or exact mass-rule products
-    (q >= 3, curved elements); the same choice as :func:`.flux.reconstruct_fluxes`."""
-    curved = bool(getattr(disc.problem.domain, "curved", False)) and disc.order > 1
-    return q <= 2 and not curved
+    """Patch-constant vertex device or exact mass-rule products: the choice of :func:`.flux.reconstruct_fluxes`."""
+    return vertex_device_exact(disc, q)
 
 
 def algebraic_residual_function(disc, x, y, *, flux_order: Optional[int] = None) -> list:
@@ -352,8 +350,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         lam_hat = lam_p if lam_n is None else lam_p + lam_n
 
     # ---------------------------------------------------------------- sigma_disc
-    curved = bool(getattr(prob.domain, "curved", False)) and p > 1
-    fbonus = 4 if curved else 0
+    fbonus = 4 if is_curved(disc) else 0
     rules = data_rules(disc)
     vertex_dx, mass_dx = dx(intrules={TRIG: _vertex_rule()}), dx(intrules=rules["mass"])
     sig_d, data, patch_data = [], [], []

@@ -506,7 +506,6 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int, layers: Optional[
     for fd, w in zip(fields, ws):
         if w is None:
             continue
-        w.vec.FV().NumPy()[~free_v & np.array(list(V.FreeDofs()), dtype=bool)] = 0.0
         r = w.vec.CreateVector()
         r.data = a.mat * w.vec
         w.vec.data -= inv * r  # discrete harmonic in the strip: (grad w, grad v) = 0 for v in P_k, v = 0 off it

@@ -470,12 +470,22 @@ def _vertex_moment_term(mesh, lam, q: int):
 REGULARIZATION, REGULARIZATION_CURVED = 1e-12, 1e-10
 
 
+def is_curved(disc) -> bool:
+    """Curved elements: a netgen geometry with a curved boundary or interface and p >= 2
+    (``FEMDiscretization`` calls ``mesh.Curve(p)`` then)."""
+    return bool(getattr(disc.problem.domain, "curved", False)) and disc.order > 1
+
+
+def vertex_device_exact(disc, q: int) -> bool:
+    """The patch-constant vertex device (:func:`_vertex_moment_term`) is exact: q <= 2 and affine elements."""
+    return q <= 2 and not is_curved(disc)
+
+
 def patch_regularization(disc, given: Optional[float] = None) -> float:
     """``given``, or the default eps for ``disc``: larger on curved meshes (module doc)."""
     if given is not None:
         return float(given)
-    curved = bool(getattr(disc.problem.domain, "curved", False)) and disc.order > 1
-    return REGULARIZATION_CURVED if curved else REGULARIZATION
+    return REGULARIZATION_CURVED if is_curved(disc) else REGULARIZATION
 
 
 def _mixed_patch_problem(mesh, q: int, regularization: float):
@@ -640,8 +650,7 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
     q = p if order is None else int(order)
     if q < 0 or (p == 1 and q > 2):
         raise ValueError(f"order (RT degree) must be 0, 1 or 2 for p = 1 and >= 0 otherwise, got {q}")
-    curved = bool(getattr(disc.problem.domain, "curved", False)) and p > 1
-    bonus = (4 if curved else 0) if bonus_intorder is None else int(bonus_intorder)
+    bonus = (4 if is_curved(disc) else 0) if bonus_intorder is None else int(bonus_intorder)
     rules = data_rules(disc)
     fields = field_data(disc, gfs)
     multiplier = "contact" if multiplier is None else multiplier
@@ -652,7 +661,7 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
     lam_order = 1
     if multiplier in ("contact", "fit") and p > 1 and y_sol is None:
         raise ValueError("the contact multiplier needs y_sol (X3)")
-    if multiplier == "contact" and p > 1 and (q > 2 or curved):
+    if multiplier == "contact" and p > 1 and not vertex_device_exact(disc, q):
         multiplier = "fit"  # the vertex device of PatchContactMultiplier is exact only for q <= 2, affine K
     if p == 1 or multiplier in ("p1", "contact"):
         if p == 1 or multiplier == "p1":

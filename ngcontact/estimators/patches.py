@@ -66,7 +66,7 @@ class PatchSolver:
     """
 
     def __init__(self, mesh, X, bf, ev):
-        self.mesh, self.X, self.ev = mesh, X, ev
+        self.mesh, self.X = mesh, X
         V, Q, F = X.components
         self.Y = V * Q  # right-hand sides: the facet rows are zero
         zf = GridFunction(F)
