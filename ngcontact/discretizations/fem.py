@@ -201,10 +201,16 @@ class FEMDiscretization:
         if self.order == 1:
             out["lam"] = rhs  # lam_h(a) = X3_a, zero on the boundary
         else:  # lam_h = sum_l X3_l Theta_l:  M Lambda = [X3; 0]
+            out["lam"] = self.mass_nodal_lu().solve(rhs)
+        return out
+
+    def mass_nodal_lu(self):
+        """LU factors of :meth:`mass_nodal` (factorized once: every Newton iterate and estimate reuses them)."""
+        if not hasattr(self, "_mass_lu"):
             import scipy.sparse.linalg as spla
 
-            out["lam"] = spla.spsolve(self.mass_nodal().tocsc(), rhs)
-        return out
+            self._mass_lu = spla.splu(self.mass_nodal().tocsc())
+        return self._mass_lu
 
     def gridfunctions(self, x, y) -> dict:
         """GridFunctions u1, u2 (or u), lam and the gap u1 - u2 (or u - psi)."""

@@ -198,12 +198,10 @@ def _p1_from_functional(disc, values: np.ndarray, name: str) -> GridFunction:
 
 def _dual_from_functional(disc, values: np.ndarray, name: str) -> GridFunction:
     """Dual-basis function r_h in P_p with (r_h, phi_l) = values_l (interior l), 0 on the boundary nodes."""
-    import scipy.sparse.linalg as spla
-
     rhs = np.zeros(disc.fes.ndof)
     rhs[disc.interior] = values
     gf = GridFunction(disc.fes, name=name)
-    gf.vec.FV().NumPy()[:] = disc.nodes.T @ spla.spsolve(disc.mass_nodal().tocsc(), rhs)
+    gf.vec.FV().NumPy()[:] = disc.nodes.T @ disc.mass_nodal_lu().solve(rhs)
     return gf
 
 

@@ -538,20 +538,47 @@ class PatchData:
     name: str = "sigma"
 
 
-def _patch_rhs(X, d: PatchData):
+def _flux_terms(u, tau, w, mu, hessian: bool, bonus: int):
+    """The u-part of the patch right-hand side (before the hat weighting), linear in u:
+    -(mu grad u, tau) - mu (Lap u w + grad u . grad w) + mu <grad u . n, w>_dK."""
+    n = specialcf.normal(2)
+    gu = grad(u)
+    lap = Trace(u.Operator("hesse")) if hessian else CoefficientFunction(0.0)
+    lf = (-mu * gu * tau - mu * (lap * w + gu * grad(w))) * dx(bonus_intorder=bonus)
+    lf += mu * (gu * n) * w * dx(element_boundary=True, bonus_intorder=bonus)
+    return lf
+
+
+def _patch_rhs(X, d: PatchData, flux_part: bool = True):
     """The right-hand side of the patch problems on X (every term is multiplied by psi_a):
     (s, tau) - (r, div tau) + <tau.n, m> = -(psi_a mu grad u, tau)   [mu constant]
     -(div s, w) - eps (r, w) = -(psi_a g, w) + (mu grad psi_a . grad u, w), with
-    (grad psi_a . grad u, w)_K = -(psi_a, Lap u w + grad u . grad w)_K + <psi_a grad u . n, w>_dK."""
+    (grad psi_a . grad u, w)_K = -(psi_a, Lap u w + grad u . grad w)_K + <psi_a grad u . n, w>_dK.
+    ``flux_part=False``: only the source part (None if there is none)."""
     tau, w = X.TestFunction()[:2]  # X = V x Q x F (PatchwiseSolve) or V x Q (batched: no facet rows)
-    n = specialcf.normal(2)
-    mu, gu = d.mu, grad(d.u)
-    lap = Trace(d.u.Operator("hesse")) if d.hessian else CoefficientFunction(0.0)
-    lf = (-mu * gu * tau - mu * (lap * w + gu * grad(w))) * dx(bonus_intorder=d.bonus_intorder)
-    lf += mu * (gu * n) * w * dx(element_boundary=True, bonus_intorder=d.bonus_intorder)
+    lf = _flux_terms(d.u, tau, w, d.mu, d.hessian, d.bonus_intorder) if flux_part else None
     if d.source is not None:
-        lf += d.source(w)
+        lf = d.source(w) if lf is None else lf + d.source(w)
     return lf
+
+
+def _flux_operator(solver: PatchSolver, d: PatchData):
+    """The ``linear`` entry of :meth:`.patches.PatchSolver.solve` for the flux terms of ``d``, or
+    None when u is not a GridFunction.  The bilinear forms get one more quadrature order than the
+    linear forms (their default order does not count the hat factor; then both are exact on
+    straight meshes and agree to round-off on curved ones)."""
+    space = getattr(d.u, "space", None)
+    if space is None or not hasattr(d.u, "vec"):
+        return None
+    tau, w = solver.Y.TestFunction()[:2]
+    trial = space.TrialFunction()
+    hessian, bonus = bool(d.hessian), int(d.bonus_intorder) + 1
+
+    def form_of_hat(hat):
+        return _times(hat, _flux_terms(trial, tau, w, 1.0, hessian, bonus))
+
+    key = ("flux", id(space), space.ndof, hessian, bonus)
+    return key, space, form_of_hat, d.u.vec.FV().NumPy(), float(d.mu)
 
 
 def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver: Optional[PatchSolver] = None):
@@ -568,8 +595,9 @@ def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver
     """
     out = []
     if solver is not None:
-        lfs = [_patch_rhs(solver.Y, d) for d in data]
-        coefs = solver.solve([lambda hat, lf=lf: _times(hat, lf) for lf in lfs])
+        linear = [_flux_operator(solver, d) for d in data]
+        lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None) for d, lin in zip(data, linear)]
+        coefs = solver.solve([None if lf is None else (lambda hat, lf=lf: _times(hat, lf)) for lf in lfs], linear)
         for d, c in zip(data, coefs):
             sig = GridFunction(solver.X.components[0], name=d.name)
             sig.vec.FV().NumPy()[:] = c.ravel()

@@ -18,6 +18,14 @@ right-hand side term multiplied by the hat function psi_a of the patch), compute
 5. sigma = sum_a sigma^a is recovered per element at once, by linearity:
    x_I = A_II^{-1} (sum_a b_K^a - A_IF sum_a m_K^a).
 
+Reuse across calls (every Newton iterate, every field): the element factorizations, the inverses
+of the patch matrices (formed from the second call on, kept while they fit in
+:attr:`PatchSolver.CACHE_BYTES`), and the parts
+of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
+:mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
+(:meth:`PatchSolver.operators`), so a new u_h costs three sparse products instead of three
+assemblies with the Hessian and element-boundary terms.
+
 Cost: ``PatchwiseSolve`` (NGSolve 6.2) loops over the vertices on one thread, recomputes the
 element matrices of every patch (three times per element) and inverts the full patch matrix
 (~90 unknowns for q = 1, 220 for q = 2): ~30 us per vertex and field for q = 1.  Here the
@@ -151,6 +159,12 @@ class PatchSolver:
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
         self.S_K = S_K
+        self.A_II_inv = np.linalg.inv(A_II)
+        self._ops = {}
+        self._inv_cache = {}
+        self._calls = 0
+        nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
+        self._keep_inverses = nbytes <= self.CACHE_BYTES
         # local-vertex hat functions (barycentric coordinates of K)
         D1 = Discontinuous(H1(mesh, order=1))
         self.hats = []
@@ -164,6 +178,42 @@ class PatchSolver:
     #: patches per batched solve (bounded work arrays: the first touch of fresh memory costs as
     #: much as the arithmetic here)
     CHUNK = 4096
+    #: memory allowed for the cached inverses of the patch matrices (else rebuilt in every call)
+    CACHE_BYTES = 2 * 1024 ** 3
+
+    def operators(self, key, space, form_of_hat):
+        """The three sparse matrices (Y.ndof x space.ndof) of the bilinear forms
+        ``form_of_hat(hat_i)`` (trial functions of ``space``, test functions of ``self.Y``),
+        assembled once per ``key`` and kept."""
+        from scipy.sparse import csr_matrix
+
+        if key not in self._ops:
+            mats = []
+            with TaskManager():
+                for hat in self.hats:
+                    bf = BilinearForm(space, self.Y)
+                    bf += form_of_hat(hat)
+                    bf.Assemble()
+                    data, indices, indptr = bf.mat.CSR()
+                    mats.append(csr_matrix((np.array(data), np.array(indices), np.array(indptr)),
+                                           shape=(bf.mat.height, bf.mat.width)))
+            self._ops[key] = (space, mats)  # the space is kept alive: its id in the key stays unique
+        return self._ops[key][1]
+
+    def _patch_solve(self, gi, G, sl, rhs):
+        """Solutions of the patch systems of the chunk ``sl`` of group ``gi`` for ``rhs`` (np, m, nf).
+        From the second :meth:`solve` on, the inverses are formed and kept (if they fit in
+        :attr:`CACHE_BYTES`): one call, e.g. one estimate per mesh of an adaptive loop, does not pay
+        for them; repeated calls (Newton iterates, algebraic fluxes) then cost a product each."""
+        key = (gi, sl.start)
+        inv = self._inv_cache.get(key)
+        if inv is not None:
+            return inv @ rhs
+        S = self._patch_matrices(G, sl)
+        if self._keep_inverses and self._calls > 1:
+            inv = self._inv_cache[key] = np.linalg.inv(S)
+            return inv @ rhs
+        return np.linalg.solve(S, rhs)
 
     def _patch_matrices(self, G, sl) -> np.ndarray:
         """The condensed matrices S_a (+ the null-mode term) of the patches ``sl`` of group G."""
@@ -185,14 +235,18 @@ class PatchSolver:
             S += z[:, :, None] * z[:, None, :]
         return S
 
-    def solve(self, lfs) -> list:
+    def solve(self, lfs, linear=None) -> list:
         """Sums over the patches of the patch solutions, RT part, for several right-hand sides.
 
         Parameters
         ----------
-        lfs : list of callable
+        lfs : list of (callable or None)
             per field: hat (CoefficientFunction) -> SumOfIntegrals of the right-hand side on
             ``self.Y`` = V x Q (test functions of Y) with every integrand multiplied by hat.
+        linear : list of (tuple or None), optional
+            per field, a further right-hand side part ``(key, space, form_of_hat, coefficients,
+            scale)``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
+            form_of_hat)[i].
 
         Returns
         -------
@@ -201,13 +255,20 @@ class PatchSolver:
         """
         ne, nV, nI, nF3 = self.mesh.ne, self.nV, self.nI, self.nF3
         nf = len(lfs)
+        self._calls += 1
         b = np.zeros((nf, 3, ne, nI))
+        linear = [None] * nf if linear is None else linear
         with TaskManager():
-            for f, lf_of_hat in enumerate(lfs):
+            for f, (lf_of_hat, lin) in enumerate(zip(lfs, linear)):
+                mats = self.operators(*lin[:3]) if lin is not None else None
                 for i, hat in enumerate(self.hats):
-                    form = LinearForm(self.Y)
-                    form += lf_of_hat(hat)
-                    vec = form.Assemble().vec.FV().NumPy()
+                    vec = np.zeros(self.Y.ndof)
+                    if lf_of_hat is not None:
+                        form = LinearForm(self.Y)
+                        form += lf_of_hat(hat)
+                        vec += form.Assemble().vec.FV().NumPy()
+                    if mats is not None:
+                        vec += lin[4] * (mats[i] @ lin[3])
                     b[f, i, :, :nV] = vec[:self.offQ].reshape(ne, nV)
                     b[f, i, :, nV:] = vec[self.offQ:self.offF].reshape(ne, self.nQ)
         # interior patches: the constant source making the patch data compatible (module doc)
@@ -224,7 +285,7 @@ class PatchSolver:
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
         g = -np.einsum("kif,ski->skf", self.W, b.reshape(nf * 3, ne, nI)).reshape(nf, 3, ne, nF3)
         msum = np.zeros((nf, ne * nF3))
-        for G in self.groups:
+        for gi, G in enumerate(self.groups):
             m = G["m"]
             for c0 in range(0, len(G["pairs"]), self.CHUNK):
                 sl = slice(c0, c0 + self.CHUNK)
@@ -234,7 +295,7 @@ class PatchSolver:
                 idx = np.arange(npch)[:, None, None] * m + loc
                 rhs = np.stack([_scatter_add((npch, m), idx, g[f, i, K]) for f in range(nf)], axis=2)
                 rhs[G["fixed"][sl]] = 0.0
-                sol = np.linalg.solve(self._patch_matrices(G, sl), rhs)           # (np, m, nf)
+                sol = self._patch_solve(gi, G, sl, rhs)                            # (np, m, nf)
                 vals = np.take_along_axis(sol[:, None, :, :], loc[:, :, :, None], axis=2)  # (np, n, nF3, nf)
                 flat = (K[:, :, None] * nF3 + np.arange(nF3)).ravel()
                 for f in range(nf):
@@ -242,7 +303,6 @@ class PatchSolver:
         msum = msum.reshape(nf, ne, nF3)
         out = []
         for f in range(nf):
-            x = np.linalg.solve(self.A_II, b[f].sum(axis=0)[:, :, None])[:, :, 0] \
-                - np.einsum("kif,kf->ki", self.W, msum[f])
+            x = np.einsum("kij,kj->ki", self.A_II_inv, b[f].sum(axis=0)) - np.einsum("kif,kf->ki", self.W, msum[f])
             out.append(x[:, :nV].copy())
         return out
