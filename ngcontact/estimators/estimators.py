@@ -160,7 +160,7 @@ from ngsolve import (BND, H1, L2, SEGM, VOL, BilinearForm, BitArray, Coefficient
                      InnerProduct, Integrate, IntegrationRule, LinearForm, TaskManager, VectorL2, div, dx, grad, x, y)
 
 from ..lagrange import lattice
-from .flux import FluxReconstruction, reconstruct_fluxes
+from .flux import FluxReconstruction, disc_cache, reconstruct_fluxes
 from ..domains import DIRICHLET
 
 __all__ = ["Estimate", "estimate", "friedrichs_constant", "element_diameters", "nonnegative_multiplier"]
@@ -705,7 +705,10 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     C_F = friedrichs_constant(prob, mesh) if friedrichs is None else float(friedrichs)
     C_mu = math.sqrt(sum(1.0 / mu for mu in mus))
     C_om = C_F * C_mu
-    dual = _P0Dual(mesh)
+    cache = disc_cache(disc)
+    if "dual" not in cache:  # the CR factorization is kept per discretization (as in .components)
+        cache["dual"] = _P0Dual(mesh)
+    dual = cache["dual"]
 
     def ew(cf, dxx=dxq):
         return Integrate(cf * dxx, mesh, element_wise=True).NumPy().copy()
