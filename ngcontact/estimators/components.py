@@ -118,7 +118,7 @@ from .estimators import (QuadratureArrays, _P0Dual, _contact_work, _corrected_fi
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
 from .flux import (ContactMultiplier, PatchContactMultiplier, PatchData, _vertex_moment_term, _vertex_rule,
                    data_rules, disc_cache, equilibrate_all, field_data, is_curved, patch_regularization,
-                   patch_solver, vertex_device_exact, vertex_moments)
+                   patch_solver, vertex_device_exact, vertex_function_values, vertex_moments)
 
 __all__ = ["Components", "estimate_components", "algebraic_residual_function", "newton_history",
            "newton_iterates", "plot_components_history", "ComponentsHistory"]
@@ -361,7 +361,15 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
             m = _gf_combination(lam_hat, float(fd.sign), r, -1.0, f"m_{fd.name}")
         else:
             m = fd.sign * lam_hat if r is None else fd.sign * lam_hat - r
-        if use_p1:  # P1 / elementwise-P1 vertex functions: the patch-constant vertex device
+        vvals = None
+        if use_p1 and batched:  # vertex functions: exact patch-constant sources of the batched solver
+            vterm, mterm = None, None
+            vvals = fd.sign * vertex_function_values(disc, lam_p)
+            if lam_n is not None:
+                vvals += fd.sign * vertex_function_values(disc, lam_n)
+            if r is not None:
+                vvals -= vertex_function_values(disc, r)
+        elif use_p1:  # P1 / elementwise-P1 vertex functions: the patch-constant vertex device
             vterm, mterm = _vertex_moment_term(mesh, m, q), None
         else:  # q >= 3: exact products with the FE mass rule
             vterm, mterm = None, m
@@ -375,7 +383,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
                 out += -mterm * w * mass_dx
             return out
         patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=fbonus,
-                                    name=f"sigma_disc_{fd.name}"))
+                                    name=f"sigma_disc_{fd.name}", vertex_values=vvals))
     sig_d = equilibrate_all(mesh, q, patch_data, regularization=patch_regularization(disc, regularization),
                             solver=patch_solver(disc, q) if batched else None)
     t_flux = time.perf_counter() - t_flux

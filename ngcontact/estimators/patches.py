@@ -200,6 +200,21 @@ class PatchSolver:
             self._ops[key] = (space, mats)  # the space is kept alive: its id in the key stays unique
         return self._ops[key][1]
 
+    def vertex_mass(self, bonus: int = 0) -> np.ndarray:
+        """M[i, K, j] = (psi_i, w_j)_K for the local hat psi_i and the P_q basis w_j of K (kept per
+        ``bonus`` quadrature order): the element vectors of a patch source psi_a g with g constant on K."""
+        key = ("vertex_mass", int(bonus))
+        if key not in self._ops:
+            Q = self.X.components[1]
+            w = Q.TestFunction()
+            M = np.empty((3, self.mesh.ne, self.nQ))
+            with TaskManager():
+                for i, hat in enumerate(self.hats):
+                    M[i] = LinearForm(hat * w * dx(bonus_intorder=int(bonus))).Assemble().vec.FV().NumPy() \
+                        .reshape(self.mesh.ne, self.nQ)
+            self._ops[key] = (None, M)
+        return self._ops[key][1]
+
     def _patch_solve(self, gi, G, sl, rhs):
         """Solutions of the patch systems of the chunk ``sl`` of group ``gi`` for ``rhs`` (np, m, nf).
         From the second :meth:`solve` on, the inverses are formed and kept (if they fit in
@@ -235,7 +250,7 @@ class PatchSolver:
             S += z[:, :, None] * z[:, None, :]
         return S
 
-    def solve(self, lfs, linear=None) -> list:
+    def solve(self, lfs, linear=None, vertex=None) -> list:
         """Sums over the patches of the patch solutions, RT part, for several right-hand sides.
 
         Parameters
@@ -247,6 +262,11 @@ class PatchSolver:
             per field, a further right-hand side part ``(key, space, form_of_hat, coefficients,
             scale)``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
             form_of_hat)[i].
+        vertex : list of (tuple or None), optional
+            per field, a source part ``(values, bonus)``: patch a sees -(psi_a g_a, w) with g_a|_K =
+            values[K, i] for the local vertex i of K that is a (values (ne, 3)), i.e. the patch-
+            constant sources of :mod:`.flux` (exact for every degree and on curved elements, with
+            :meth:`vertex_mass` of that ``bonus``).
 
         Returns
         -------
@@ -271,6 +291,11 @@ class PatchSolver:
                         vec += lin[4] * (mats[i] @ lin[3])
                     b[f, i, :, :nV] = vec[:self.offQ].reshape(ne, nV)
                     b[f, i, :, nV:] = vec[self.offQ:self.offF].reshape(ne, self.nQ)
+        for f, vs in enumerate(vertex or []):
+            if vs is not None:
+                values, bonus = vs
+                M = self.vertex_mass(bonus)
+                b[f, :, :, nV:] -= np.asarray(values, float).T[:, :, None] * M
         # interior patches: the constant source making the patch data compatible (module doc)
         tested = (b[:, :, :, nV:] * self.one_Q[None, None]).sum(axis=3)   # w-rhs tested with w = 1
         for G in self.groups:
