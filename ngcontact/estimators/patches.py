@@ -159,7 +159,7 @@ class PatchSolver:
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
         self.S_K = S_K
-        self.A_II_inv = np.linalg.inv(A_II)
+        self.A_II_inv = None  # formed from the second solve() on (as the patch inverses)
         self._ops = {}
         self._inv_cache = {}
         self._calls = 0
@@ -326,8 +326,15 @@ class PatchSolver:
                 for f in range(nf):
                     msum[f] += np.bincount(flat, weights=vals[..., f].ravel(), minlength=ne * nF3)
         msum = msum.reshape(nf, ne, nF3)
+        bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
+        if self.A_II_inv is None and self._calls > 1:
+            self.A_II_inv = np.linalg.inv(self.A_II)
+        if self.A_II_inv is None:
+            xb = np.linalg.solve(self.A_II, bsum.transpose(1, 2, 0))                  # (ne, nI, nf)
+        else:
+            xb = self.A_II_inv @ bsum.transpose(1, 2, 0)
         out = []
         for f in range(nf):
-            x = np.einsum("kij,kj->ki", self.A_II_inv, b[f].sum(axis=0)) - np.einsum("kif,kf->ki", self.W, msum[f])
+            x = xb[:, :, f] - np.einsum("kif,kf->ki", self.W, msum[f])
             out.append(x[:, :nV].copy())
         return out
