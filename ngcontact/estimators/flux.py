@@ -22,9 +22,10 @@ once per mesh, patch systems on the facet unknowns only, all fields in one
 call; cached per discretization, :func:`patch_solver`), or with NGSolve's
 compiled patch loop ``PatchwiseSolve`` (``batched=False``; same fluxes to
 round-off on straight meshes).  Measured flux time, both fields (PatchwiseSolve
--> batched first call / later calls with the cached solver): disk P1, 35k
-vertices, 3.3 s -> 3.1 s / 1.7 s; disk P2, 17k elements, 3.4 s -> 3.4 s / 2.3 s;
-test 1 P3, 4k elements, 1.55 s -> 1.28 s / 0.61 s.
+-> batched first / second / third and later calls with the cached solver, whose
+flux operators and inverses are kept): disk P1, 70k elements, 3.49 s -> 3.39 /
+2.06 / 0.52 s; disk P2, 17k elements, 3.47 s -> 2.48 / 1.10 / 0.36 s; test 1 P3,
+16k elements, 6.93 s -> 3.69 / 2.15 / 0.62 s.
 
 The multiplier seen by the patches.  Compatibility of an interior patch is
 the discrete equation tested with psi_a,
