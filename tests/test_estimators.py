@@ -470,13 +470,32 @@ def test_contact_fit_reweighting_removes_negative_lobes():
     scene = load_scene("lshape")
     disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=3)
     sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
-    est = estimate(disc, sol.x, sol.y)
+    est = estimate(disc, sol.x, sol.y, multiplier="fit")
     old = FL.ContactMultiplier.ROUNDS
     try:
         FL.ContactMultiplier.ROUNDS = 0
-        plain = estimate(disc, sol.x, sol.y)
+        plain = estimate(disc, sol.x, sol.y, multiplier="fit")
     finally:
         FL.ContactMultiplier.ROUNDS = old
     assert plain.eta_nonc2 > 1e-3 * plain.eta
     assert est.eta_nonc2 <= 1e-10 * est.eta
     assert est.err_energy <= est.eta < plain.eta
+
+
+@pytest.mark.parametrize("scene,p,level,expect", [("lshape", 3, 0, None), ("disk_fitted", 3, 0, "fit")])
+def test_default_multiplier_is_the_smaller_of_fit_and_shape(scene, p, level, expect):
+    """RT_3: the default estimate is the smaller of the two guaranteed bounds (contact-weighted fit,
+    shaped patch sources); on the fitted disk (lam jumps at the free boundary) the fit wins by far,
+    and the shaped multiplier is nonnegative (eta_nonc,2 = 0)."""
+    sc = load_scene(scene)
+    disc = FEMDiscretization(sc.problem, list(sc.problem.domain.meshes(level + 1))[level], order=p)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(sc.initial_guess), NewtonOptions())
+    est = estimate(disc, sol.x, sol.y)
+    fit = estimate(disc, sol.x, sol.y, multiplier="fit")
+    shape = estimate(disc, sol.x, sol.y, multiplier="shape")
+    assert est.eta == pytest.approx(min(fit.eta, shape.eta), rel=1e-10)  # first call: solves, later: kept inverses
+    assert est.multiplier == ("fit" if fit.eta <= shape.eta else "shape")
+    assert shape.eta_nonc2 == 0.0
+    assert min(fit.eta, shape.eta) >= est.err_energy
+    if expect:
+        assert est.multiplier == expect and shape.eta > 2 * fit.eta

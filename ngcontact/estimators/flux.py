@@ -431,6 +431,64 @@ class PatchContactMultiplier:
         return gf
 
 
+class ShapedContactMultiplier:
+    r"""lam^_h for the batched solver, p >= 2: patch sources psi_a s_a phi with the shape phi = lam_h^+.
+
+    Patch a sees the source psi_a s_a phi, s_a = m_a / (psi_a phi, 1) >= 0 (the hat moment m_a of
+    the discrete multiplier; exact compatibility), when the shape carries the moment
+    (1/2 <= s_a <= 2: the patch lies in the contact set, where lam_h >= 0 and s_a ~ 1); every
+    other patch uses the patch constant of :class:`PatchContactMultiplier`.  The equilibrated
+    multiplier lam^ = sum_a psi_a s_a phi (+ the constant parts) is >= 0 and equals ~lam_h (P_p)
+    inside the contact set, where the P1 functions of :class:`ContactMultiplier` and
+    :class:`PatchContactMultiplier` cannot follow a curved lam on coarse elements (L-shape P3,
+    adaptive level 6: ||lam^ - lam||_K / ||lam||_K 0.73 with the fit, 0.05 with lam_h).
+    Batched solver only (its shaped sources, :meth:`.patches.PatchSolver.shaped_mass`).
+
+    Parameters
+    ----------
+    disc : FEMDiscretization (p >= 2)
+    y_marker : ndarray
+        X3 (nonnegative part defines the contact elements of the fallback constants).
+    lam_h : GridFunction
+        the discrete (dual-basis) multiplier; its positive part is the shape.
+    low, high : float
+        range of s_a in which the shape is used.
+    """
+
+    def __init__(self, disc, y_marker, lam_h, *, low: float = 0.5, high: float = 2.0, tol: float = 1e-8):
+        from ngsolve import IfPos
+
+        self.disc, self.low, self.high = disc, float(low), float(high)
+        self.const = PatchContactMultiplier(disc, y_marker, tol=tol)
+        mesh = disc.mesh
+        ev = _element_vertices(disc)
+        contact = GridFunction(L2(mesh, order=0), name="contact_elements")
+        contact.vec.FV().NumPy()[:] = _contact_vertices(disc, y_marker, tol)[ev].all(axis=1)
+        self.shape = contact * IfPos(lam_h, lam_h, 0.0)
+        V = Discontinuous(H1(mesh, order=1))
+        with TaskManager():
+            A = LinearForm(self.shape * V.TestFunction() * dx(intrules=data_rules(disc)["mass"])) \
+                .Assemble().vec.FV().NumPy().reshape(mesh.ne, 3)                 # (psi_i phi, 1)_K
+        self._ev = _element_vertices(disc)
+        self._Aphi = np.bincount(self._ev.ravel(), weights=A.ravel(), minlength=mesh.nv)  # (psi_a phi, 1)
+        self.V = V
+
+    def terms(self, functional: np.ndarray):
+        """(lam^ CoefficientFunction, [(values, shape), (values, None)]) for a functional on the
+        interior Lagrange basis (e.g. D X3)."""
+        m = self.const.Psi.T @ np.asarray(functional, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(self._Aphi > 0, m / np.where(self._Aphi > 0, self._Aphi, 1.0), -1.0)
+        shaped = (s >= self.low) & (s <= self.high)
+        vs = np.where(shaped[self._ev], s[self._ev], 0.0)                                   # (ne, 3)
+        vc = np.where(shaped[self._ev], 0.0, self.const._coef * m[self._ev])               # (ne, 3)
+        gs, gc = GridFunction(self.V, name="lam_shape_coef"), GridFunction(self.V, name="lam_const")
+        gs.vec.FV().NumPy()[:] = vs.ravel()
+        gc.vec.FV().NumPy()[:] = vc.ravel()
+        self.n_shaped = int(shaped.sum())
+        return self.shape * gs + gc, [(vs, self.shape), (vc, None)]
+
+
 def _contact_vertices(disc, y_marker, tol: float) -> np.ndarray:
     """Vertices whose hat moment of the multiplier y_marker^+ is positive: c_a = m_a / (psi_a, 1) > tol max c."""
     Psi, vol, _ = vertex_moments(disc)
@@ -582,6 +640,26 @@ def _patch_rhs(X, d: PatchData, flux_part: bool = True):
     return lf
 
 
+def _signed(vertex_values, sign):
+    """sign * vertex_values (array or list of (values, shape) pairs)."""
+    if vertex_values is None:
+        return None
+    if isinstance(vertex_values, np.ndarray):
+        return sign * vertex_values
+    return [(sign * v, shape) for v, shape in vertex_values]
+
+
+def _vertex_terms(d: PatchData):
+    """The ``vertex`` entry of :meth:`.patches.PatchSolver.solve` for ``d.vertex_values``: an (ne, 3)
+    array (patch constants) or a list of (values, shape) pairs (shape None: constants)."""
+    vv = d.vertex_values
+    if vv is None:
+        return None
+    if isinstance(vv, np.ndarray):
+        vv = [(vv, None)]
+    return [(values, d.bonus_intorder + 1, shape) for values, shape in vv]
+
+
 def _flux_operator(solver: PatchSolver, d: PatchData):
     """The ``linear`` entry of :meth:`.patches.PatchSolver.solve` for the flux terms of ``d``, or
     None when u is not a GridFunction.  The bilinear forms get one more quadrature order than the
@@ -617,7 +695,7 @@ def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver
     if solver is not None:
         linear = [_flux_operator(solver, d) for d in data]
         lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None) for d, lin in zip(data, linear)]
-        vertex = [None if d.vertex_values is None else (d.vertex_values, d.bonus_intorder + 1) for d in data]
+        vertex = [_vertex_terms(d) for d in data]
         coefs = solver.solve([None if lf is None else (lambda hat, lf=lf: _times(hat, lf)) for lf in lfs], linear,
                              vertex)
         for d, c in zip(data, coefs):
@@ -687,7 +765,8 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
         multiplier of the patch data for p >= 2.  Default: :class:`PatchContactMultiplier` for
         q <= 2 on straight meshes, else :class:`ContactMultiplier`.  ``"contact"``:
         :class:`PatchContactMultiplier` (for q >= 3 or curved elements only with ``batched``, whose
-        patch-constant sources are exact there; else as the default), ``"fit"`` (always :class:`ContactMultiplier`),
+        patch-constant sources are exact there; else as the default), ``"shape"``
+        (:class:`ShapedContactMultiplier`, batched only; else "fit"), ``"fit"`` (always :class:`ContactMultiplier`),
         the continuous P1 function lam^_h with the lumped patch
         constants (q <= 2; nonnegative when X3 >= 0, but smeared across the
         free boundary) or the dual-basis lam_h.  p = 1: always lam_h (lumped).
@@ -708,12 +787,12 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
     fields = field_data(disc, gfs)
     auto = multiplier is None
     multiplier = "contact" if multiplier is None else multiplier
-    if multiplier not in ("contact", "fit", "p1", "dual"):
-        raise ValueError(f"multiplier must be 'contact', 'fit', 'p1' or 'dual', got {multiplier!r}")
+    if multiplier not in ("contact", "fit", "shape", "p1", "dual"):
+        raise ValueError(f"multiplier must be 'contact', 'fit', 'shape', 'p1' or 'dual', got {multiplier!r}")
     if multiplier == "p1" and q > 2 and p > 1:
         raise ValueError(f"multiplier 'p1' needs RT degree <= 2, got {q}")
     lam_order = 1
-    if multiplier in ("contact", "fit") and p > 1 and y_sol is None:
+    if multiplier in ("contact", "fit", "shape") and p > 1 and y_sol is None:
         raise ValueError("the contact multiplier needs y_sol (X3)")
     if multiplier == "contact" and p > 1 and (auto or not batched) and not vertex_device_exact(disc, q):
         # default for q >= 3 / curved elements: the weighted fit (sharper than the patch constants on
@@ -721,7 +800,12 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
         # patch constants there in the batched path (exact sources), PatchwiseSolve needs the vertex device
         multiplier = "fit"
     vertex_values = None
-    if p == 1 or multiplier in ("p1", "contact"):
+    if multiplier == "shape" and not batched:
+        multiplier = "fit"  # shaped patch sources exist only in the batched solver
+    if p > 1 and multiplier == "shape":
+        lam, vertex_values = ShapedContactMultiplier(disc, y_sol, gfs["lam"]).terms(disc.D * np.asarray(y_sol, float))
+        lam_term, lam_order = None, p
+    elif p == 1 or multiplier in ("p1", "contact"):
         if p == 1 or multiplier == "p1":
             lam = multiplier_p1(disc, gfs)
         else:
@@ -748,7 +832,7 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
             return out if lam_term is None else out - fd.sign * lam_term(w) * lam_dx
         data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=bonus,
                               name=f"sigma_{fd.name}",
-                              vertex_values=None if vertex_values is None else fd.sign * vertex_values))
+                              vertex_values=_signed(vertex_values, fd.sign)))
     solver = patch_solver(disc, q) if batched else None
     sigmas = equilibrate_all(mesh, q, data, regularization=patch_regularization(disc, regularization),
                              solver=solver)

@@ -215,6 +215,17 @@ class PatchSolver:
             self._ops[key] = (None, M)
         return self._ops[key][1]
 
+    def shaped_mass(self, shape, bonus: int = 0) -> np.ndarray:
+        """M[i, K, j] = (psi_i shape, w_j)_K (not kept: the shape changes with the iterate)."""
+        Q = self.X.components[1]
+        w = Q.TestFunction()
+        M = np.empty((3, self.mesh.ne, self.nQ))
+        with TaskManager():
+            for i, hat in enumerate(self.hats):
+                M[i] = LinearForm(hat * shape * w * dx(bonus_intorder=int(bonus))).Assemble().vec.FV().NumPy() \
+                    .reshape(self.mesh.ne, self.nQ)
+        return M
+
     def _patch_solve(self, gi, G, sl, rhs):
         """Solutions of the patch systems of the chunk ``sl`` of group ``gi`` for ``rhs`` (np, m, nf).
         From the second :meth:`solve` on, the inverses are formed and kept (if they fit in
@@ -262,11 +273,12 @@ class PatchSolver:
             per field, a further right-hand side part ``(key, space, form_of_hat, coefficients,
             scale)``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
             form_of_hat)[i].
-        vertex : list of (tuple or None), optional
-            per field, a source part ``(values, bonus)``: patch a sees -(psi_a g_a, w) with g_a|_K =
-            values[K, i] for the local vertex i of K that is a (values (ne, 3)), i.e. the patch-
-            constant sources of :mod:`.flux` (exact for every degree and on curved elements, with
-            :meth:`vertex_mass` of that ``bonus``).
+        vertex : list of (list or None), optional
+            per field, source terms ``(values, bonus, shape)``: patch a sees -(psi_a g_a, w) with
+            g_a|_K = values[K, i] for the local vertex i of K that is a (values (ne, 3)), i.e. the
+            patch-constant sources of :mod:`.flux` (exact for every degree and on curved elements,
+            with :meth:`vertex_mass` of that ``bonus``), or g_a|_K = values[K, i] shape if ``shape``
+            (a CoefficientFunction) is not None (:meth:`shaped_mass`).
 
         Returns
         -------
@@ -291,10 +303,9 @@ class PatchSolver:
                         vec += lin[4] * (mats[i] @ lin[3])
                     b[f, i, :, :nV] = vec[:self.offQ].reshape(ne, nV)
                     b[f, i, :, nV:] = vec[self.offQ:self.offF].reshape(ne, self.nQ)
-        for f, vs in enumerate(vertex or []):
-            if vs is not None:
-                values, bonus = vs
-                M = self.vertex_mass(bonus)
+        for f, terms in enumerate(vertex or []):
+            for values, bonus, shape in terms or []:
+                M = self.vertex_mass(bonus) if shape is None else self.shaped_mass(shape, bonus)
                 b[f, :, :, nV:] -= np.asarray(values, float).T[:, :, None] * M
         # interior patches: the constant source making the patch data compatible (module doc)
         tested = (b[:, :, :, nV:] * self.one_Q[None, None]).sum(axis=3)   # w-rhs tested with w = 1
