@@ -205,24 +205,17 @@ class PatchSolver:
         ``bonus`` quadrature order): the element vectors of a patch source psi_a g with g constant on K."""
         key = ("vertex_mass", int(bonus))
         if key not in self._ops:
-            Q = self.X.components[1]
-            w = Q.TestFunction()
-            M = np.empty((3, self.mesh.ne, self.nQ))
-            with TaskManager():
-                for i, hat in enumerate(self.hats):
-                    M[i] = LinearForm(hat * w * dx(bonus_intorder=int(bonus))).Assemble().vec.FV().NumPy() \
-                        .reshape(self.mesh.ne, self.nQ)
-            self._ops[key] = (None, M)
+            self._ops[key] = (None, self.shaped_mass(None, bonus))
         return self._ops[key][1]
 
     def shaped_mass(self, shape, bonus: int = 0) -> np.ndarray:
-        """M[i, K, j] = (psi_i shape, w_j)_K (not kept: the shape changes with the iterate)."""
-        Q = self.X.components[1]
-        w = Q.TestFunction()
+        """M[i, K, j] = (psi_i shape, w_j)_K (shape None: 1; not kept: the shape changes with the iterate)."""
+        w = self.X.components[1].TestFunction()
         M = np.empty((3, self.mesh.ne, self.nQ))
         with TaskManager():
             for i, hat in enumerate(self.hats):
-                M[i] = LinearForm(hat * shape * w * dx(bonus_intorder=int(bonus))).Assemble().vec.FV().NumPy() \
+                cf = hat if shape is None else hat * shape
+                M[i] = LinearForm(cf * w * dx(bonus_intorder=int(bonus))).Assemble().vec.FV().NumPy() \
                     .reshape(self.mesh.ne, self.nQ)
         return M
 
