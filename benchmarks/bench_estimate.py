@@ -82,9 +82,9 @@ def main(argv=None):
              "on the cold-start solution. ratio = estimator time / Newton time (acceptance: <= 2 at ~1e5 dofs).",
              "The first `estimate` includes the setup of the batched patch solver (element condensation and patch",
              "structure, sparse operators of the flux terms: `ngcontact/estimators/patches.py`), which is cached per",
-             "discretization; the second call (`estimate again`) also forms the inverses of the element and patch",
-             "matrices, which the third and later calls (`estimate 3rd call`, the variants below it, every Newton",
-             "iterate of the inexact modes) reuse. One estimate per mesh (adaptive loop): the first-call row.", "",
+             "discretization; the third call (`estimate 3rd call`) also forms the inverses of the element and patch",
+             "matrices, which the later calls (the variants below it, every Newton iterate of the inexact modes)",
+             "reuse. One estimate per mesh (adaptive loop): the first-call row.", "",
              "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(str(r[c]) for c in cols) + " |" for r in rows]
     (out / "ESTIMATE.md").write_text("\n".join(lines) + "\n")

@@ -63,7 +63,7 @@ def test_solve_several_right_hand_sides_at_once():
 
 
 def test_cached_operators_and_inverses_reproduce_the_first_call():
-    """The flux operators and the patch inverses kept from the second call on give the fluxes of
+    """The flux operators and the patch inverses kept from the third call on give the fluxes of
     the first call (which solves without them) to round-off."""
     disc, sol = _solved("test1", 2, 1)
     first = reconstruct_fluxes(disc, sol.x, sol.y)

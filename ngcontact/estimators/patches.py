@@ -19,7 +19,7 @@ right-hand side term multiplied by the hat function psi_a of the patch), compute
    x_I = A_II^{-1} (sum_a b_K^a - A_IF sum_a m_K^a).
 
 Reuse across calls (every Newton iterate, every field): the element factorizations, the inverses
-of the patch matrices (formed from the second call on, kept while they fit in
+of the patch matrices (formed from the third call on, kept while they fit in
 :attr:`PatchSolver.CACHE_BYTES`), and the parts
 of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
 :mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
@@ -159,7 +159,7 @@ class PatchSolver:
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
         self.S_K = S_K
-        self.A_II_inv = None  # formed from the second solve() on (as the patch inverses)
+        self.A_II_inv = None  # formed from the third solve() on (as the patch inverses)
         self._ops = {}
         self._inv_cache = {}
         self._calls = 0
@@ -221,15 +221,16 @@ class PatchSolver:
 
     def _patch_solve(self, gi, G, sl, rhs):
         """Solutions of the patch systems of the chunk ``sl`` of group ``gi`` for ``rhs`` (np, m, nf).
-        From the second :meth:`solve` on, the inverses are formed and kept (if they fit in
-        :attr:`CACHE_BYTES`): one call, e.g. one estimate per mesh of an adaptive loop, does not pay
-        for them; repeated calls (Newton iterates, algebraic fluxes) then cost a product each."""
+        From the third :meth:`solve` on, the inverses are formed and kept (if they fit in
+        :attr:`CACHE_BYTES`): one or two calls (one estimate per mesh of an adaptive loop, with the two
+        multipliers of RT_3) do not pay for them; repeated calls (Newton iterates, algebraic fluxes)
+        then cost a product each."""
         key = (gi, sl.start)
         inv = self._inv_cache.get(key)
         if inv is not None:
             return inv @ rhs
         S = self._patch_matrices(G, sl)
-        if self._keep_inverses and self._calls > 1:
+        if self._keep_inverses and self._calls > 2:
             inv = self._inv_cache[key] = np.linalg.inv(S)
             return inv @ rhs
         return np.linalg.solve(S, rhs)
@@ -331,7 +332,7 @@ class PatchSolver:
                     msum[f] += np.bincount(flat, weights=vals[..., f].ravel(), minlength=ne * nF3)
         msum = msum.reshape(nf, ne, nF3)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
-        if self.A_II_inv is None and self._calls > 1:
+        if self.A_II_inv is None and self._calls > 2:
             self.A_II_inv = np.linalg.inv(self.A_II)
         if self.A_II_inv is None:
             xb = np.linalg.solve(self.A_II, bsum.transpose(1, 2, 0))                  # (ne, nI, nf)
