@@ -605,7 +605,8 @@ class PatchData:
     (ne, 3) (batched solver only): a further patch-constant source, patch a sees -(psi_a g_a, w)
     with g_a|_K = vertex_values[K, i] for the local vertex i of K that is a (exact for every RT
     degree and on curved elements; the vertex device :func:`_vertex_moment_term` is the
-    ``PatchwiseSolve`` counterpart, exact for q <= 2 on affine elements)."""
+    ``PatchwiseSolve`` counterpart, exact for q <= 2 on affine elements), or a list of
+    (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`ShapedContactMultiplier`)."""
 
     u: object
     mu: float
@@ -613,7 +614,7 @@ class PatchData:
     hessian: bool = True
     bonus_intorder: int = 0
     name: str = "sigma"
-    vertex_values: Optional[np.ndarray] = None
+    vertex_values: Optional[object] = None
 
 
 def _flux_terms(u, tau, w, mu, hessian: bool, bonus: int):
