@@ -11,8 +11,8 @@ dolfinx_eqlb's ``check_divergence_condition`` / ``check_jump_condition``):
 from __future__ import annotations
 
 import numpy as np
-from ngsolve import (BilinearForm, FacetFESpace, GridFunction, IfPos, Integrate, L2, LinearForm, TaskManager,
-                     div, dx, specialcf)
+from ngsolve import (TRIG, BilinearForm, FacetFESpace, GridFunction, IfPos, Integrate, IntegrationRule, L2, LinearForm,
+                     TaskManager, div, dx, specialcf)
 
 from .flux import FluxReconstruction, data_rules
 from ..domains import DIRICHLET
@@ -43,11 +43,20 @@ def projected_source(disc, flux: FluxReconstruction, i: int) -> GridFunction:
 
     f and lam are integrated with the FE load and mass rules
     (:func:`~.flux.data_rules`), the quadratures the discrete problem itself
-    saw; on affine elements the lam term is exact.
+    saw; on affine elements the lam term is exact (a non-polynomial lam^: the
+    rule of the patch sources, ``flux.lam_rule``).
     """
     fd, rules = flux.fields[i], data_rules(disc)
     return _l2_projection(disc, flux.order, lambda w: fd.f * w * dx(intrules=rules["load"])
-                          + fd.sign * flux.lam * w * dx(intrules=rules["mass"]))
+                          + fd.sign * flux.lam * w * _lam_dx(disc, flux))
+
+
+def _lam_dx(disc, flux: FluxReconstruction):
+    """The measure of the lam-part of the patch sources: the FE mass rule, or the fixed rule of a
+    non-polynomial lam^ (``flux.lam_rule``)."""
+    if flux.lam_rule is None:
+        return dx(intrules=data_rules(disc)["mass"])
+    return dx(intrules={TRIG: IntegrationRule(TRIG, flux.lam_rule)})
 
 
 def equilibration_defect(disc, flux: FluxReconstruction) -> dict:
@@ -69,7 +78,7 @@ def equilibration_defect(disc, flux: FluxReconstruction) -> dict:
     for i, (fd, sig) in enumerate(zip(flux.fields, flux.sigma)):
         gh = projected_source(disc, flux, i)
         dh = _l2_projection(disc, flux.order, lambda w: fd.f * w * dx(intrules=rules["load"])
-                            + fd.sign * flux.lam * w * dx(intrules=rules["mass"]) - div(sig) * w * dx(bonus_intorder=2))
+                            + fd.sign * flux.lam * w * _lam_dx(disc, flux) - div(sig) * w * dx(bonus_intorder=2))
         with TaskManager():
             dK = Integrate(dh * dh * dx(bonus_intorder=2), disc.mesh, element_wise=True).NumPy()
             ref = Integrate(gh * gh * dx(bonus_intorder=2), disc.mesh)

@@ -14,17 +14,17 @@ div sigma_ah = Pi_q f_a + s_a lam^_h.
 
 Multiplier.  Every lam^_h with the hat moments of the discrete multiplier gives compatible
 patch problems, hence a guaranteed bound; the bound is sharp when lam^_h is close to lam.
-Where the vertex device is exact (q <= 2, affine elements) lam^_h is the patch-constant
-:class:`.flux.PatchContactMultiplier`, on curved P2 elements the fit below.  For RT_3 two
-candidates are computed and the smaller bound is kept (the minimum of two guaranteed bounds is one): the
-contact-weighted P1 fit :class:`.flux.ContactMultiplier`, sharp when lam jumps at the free
-boundary (fitted disk P3: I_eff 1.005 against 4.7 for the other), and
-:class:`.flux.ShapedContactMultiplier`, patch sources psi_a s_a lam_h^+ that follow a smooth
-lam inside the contact set on coarse elements, where a P1 function cannot (L-shape P3 on an
-adaptive mesh of 4062 unknowns: I_eff 1.906 -> 1.417, eta_F 1.007e-2 -> 7.31e-3 for an error
-of 5.71e-3; on curved P2 elements the fit was always the smaller: fitted disk P2 1.193 / 1.081 /
-1.047 against 1.221 / 1.124 / 1.130).  :attr:`Estimate.multiplier` says which one was kept; the
-time is that of both.  lam~_h >= 0 is lam^_h made nonnegative (identical to
+Two candidates are computed and the smaller bound is kept (the minimum of two guaranteed bounds
+is one): a multiplier sharp when lam jumps at the free boundary -- for q <= 2 on affine elements
+the patch-constant :class:`.flux.PatchContactMultiplier` (exact vertex device), for RT_3 the
+contact-weighted P1 fit :class:`.flux.ContactMultiplier` (fitted disk P3: I_eff 1.005 against
+4.7 for the other) -- and :class:`.flux.ShapedContactMultiplier`, patch sources
+psi_a s_a lam_h^+ that follow a smooth lam inside the contact set on coarse elements, where an
+elementwise P1 function cannot (L-shape P3 on an adaptive mesh of 4062 unknowns: I_eff 1.906 ->
+1.417, eta_F 1.007e-2 -> 7.31e-3 for an error of 5.71e-3; L-shape P2 adaptive, 1272 / 1506 /
+2040 unknowns: 1.305 / 1.340 / 1.325 -> 1.236 / 1.213 / 1.188).  On curved P2 elements only the
+fit is used (it was always the smaller: fitted disk P2 1.193 / 1.081 / 1.047 against 1.221 /
+1.124 / 1.130).  :attr:`Estimate.multiplier` says which one was kept; the time is that of both.  lam~_h >= 0 is lam^_h made nonnegative (identical to
 lam^_h whenever X3 >= 0, i.e. at convergence; see :func:`nonnegative_multiplier`).
 u~_h = u_h + w_h is the discrete solution with corrected Dirichlet data
 (w_h = 0 for piecewise polynomial g, e.g. the disk test; "Dirichlet data"
@@ -174,7 +174,7 @@ from ngsolve import (BND, H1, L2, SEGM, VOL, BilinearForm, BitArray, Coefficient
                      InnerProduct, Integrate, IntegrationRule, LinearForm, TaskManager, VectorL2, div, dx, grad, x, y)
 
 from ..lagrange import lattice
-from .flux import FluxReconstruction, disc_cache, reconstruct_fluxes
+from .flux import FluxReconstruction, disc_cache, reconstruct_fluxes, vertex_device_exact
 from ..domains import DIRICHLET
 
 __all__ = ["Estimate", "estimate", "friedrichs_constant", "element_diameters", "nonnegative_multiplier"]
@@ -698,8 +698,9 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
         non-polynomial g).
     multiplier : {"contact", "fit", "shape", "p1", "dual"}, optional
         lam^_h of the equilibration for p >= 2 (:func:`~.flux.reconstruct_fluxes`).  Default: the
-        patch constants where the vertex device is exact (q <= 2, affine elements), "fit" on curved
-        P2 elements, for RT_3 the smaller of the "fit" and "shape" bounds (module doc, "Multiplier").
+        smaller of the "contact" and "shape" bounds where the vertex device is exact (q <= 2, affine
+        elements), of the "fit" and "shape" bounds for RT_3, "fit" on curved P2 elements (module
+        doc, "Multiplier").
     concentrate : bool, optional
         choose lam~ by :func:`concentrated_multiplier` (default for p >= 2; the P2 contact term on the
         disk / test 2 otherwise dominates: I_eff 4-5); False: lam~ = lam^ made nonnegative.  Default
@@ -713,13 +714,16 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     t0 = time.perf_counter()
     mesh, p = disc.mesh, disc.order
     q = p if flux_order is None else int(flux_order)
-    if flux is None and multiplier is None and p >= 2 and q >= 3:
+    pair = None
+    if flux is None and multiplier is None and p >= 2:
+        pair = ("fit", "shape") if q >= 3 else ("contact", "shape") if vertex_device_exact(disc, q) else None
+    if pair:
         # two admissible multipliers, two guaranteed bounds: keep the smaller (module doc, "Multiplier")
         kw = dict(errors=errors, friedrichs=friedrichs, flux_order=flux_order, bonus_intorder=bonus_intorder,
                   dirichlet_correction=dirichlet_correction, concentrate=concentrate)
-        both = [estimate(disc, x_sol, y_sol, multiplier=m, **kw) for m in ("fit", "shape")]
+        both = [estimate(disc, x_sol, y_sol, multiplier=m, **kw) for m in pair]
         best = min(both, key=lambda e: e.eta)
-        best.multiplier = "fit" if best is both[0] else "shape"
+        best.multiplier = pair[0] if best is both[0] else pair[1]
         best.time_total = time.perf_counter() - t0
         best.time_flux = sum(e.time_flux for e in both)
         return best

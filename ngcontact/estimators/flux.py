@@ -187,6 +187,10 @@ class FluxReconstruction:
         broken ``HDiv(order=q, RT=True, discontinuous=True)``.
     time : float
         wall time [s].
+    lam_rule : int or None
+        order of the triangle rule with which the patch sources integrated lam^ (non-polynomial
+        lam^ of :class:`ShapedContactMultiplier`; None: the FE mass rule); the equilibration check
+        uses the same rule.
     lam_order : int
         polynomial degree of ``lam``.
     """
@@ -198,6 +202,7 @@ class FluxReconstruction:
     space: object
     time: float = 0.0
     lam_order: int = 1
+    lam_rule: Optional[int] = None  # order of the TRIG rule of the lam-part of the sources (None: FE mass rule)
     _conforming: dict = field(default_factory=dict, repr=False)
 
     def conforming(self, i: int) -> GridFunction:
@@ -453,9 +458,13 @@ class ShapedContactMultiplier:
         the discrete (dual-basis) multiplier; its positive part is the shape.
     low, high : float
         range of s_a in which the shape is used.
+    rule_order : int, optional
+        order of the triangle rule of the patch sources (:meth:`.patches.PatchSolver.shaped_rule_order`),
+        used for (psi_a phi, 1) too, so that the patch data are compatible to round-off.
     """
 
-    def __init__(self, disc, y_marker, lam_h, *, low: float = 0.5, high: float = 2.0, tol: float = 1e-8):
+    def __init__(self, disc, y_marker, lam_h, *, low: float = 0.5, high: float = 2.0, tol: float = 1e-8,
+                 rule_order: Optional[int] = None):
         from ngsolve import IfPos
 
         self.disc, self.low, self.high = disc, float(low), float(high)
@@ -467,7 +476,8 @@ class ShapedContactMultiplier:
         self.shape = contact * IfPos(lam_h, lam_h, 0.0)
         V = Discontinuous(H1(mesh, order=1))
         with TaskManager():
-            A = LinearForm(self.shape * V.TestFunction() * dx(intrules=data_rules(disc)["mass"])) \
+            rule = data_rules(disc)["mass"] if rule_order is None else {TRIG: IntegrationRule(TRIG, int(rule_order))}
+            A = LinearForm(self.shape * V.TestFunction() * dx(intrules=rule)) \
                 .Assemble().vec.FV().NumPy().reshape(mesh.ne, 3)                 # (psi_i phi, 1)_K
         self._ev = _element_vertices(disc)
         self._Aphi = np.bincount(self._ev.ravel(), weights=A.ravel(), minlength=mesh.nv)  # (psi_a phi, 1)
@@ -803,8 +813,11 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
     vertex_values = None
     if multiplier == "shape" and not batched:
         multiplier = "fit"  # shaped patch sources exist only in the batched solver
+    lam_rule = None
     if p > 1 and multiplier == "shape":
-        lam, vertex_values = ShapedContactMultiplier(disc, y_sol, gfs["lam"]).terms(disc.D * np.asarray(y_sol, float))
+        lam_rule = patch_solver(disc, q).shaped_rule_order(bonus + 1)
+        lam, vertex_values = ShapedContactMultiplier(disc, y_sol, gfs["lam"], rule_order=lam_rule) \
+            .terms(disc.D * np.asarray(y_sol, float))
         lam_term, lam_order = None, p
     elif p == 1 or multiplier in ("p1", "contact"):
         if p == 1 or multiplier == "p1":
@@ -839,5 +852,5 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
                              solver=solver)
     V = sigmas[0].space
     return FluxReconstruction(sigma=sigmas, fields=fields, lam=lam, order=q, space=V,
-                              time=time.perf_counter() - t0, lam_order=lam_order)
+                              time=time.perf_counter() - t0, lam_order=lam_order, lam_rule=lam_rule)
 

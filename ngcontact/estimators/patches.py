@@ -208,15 +208,23 @@ class PatchSolver:
             self._ops[key] = (None, self.shaped_mass(None, bonus))
         return self._ops[key][1]
 
+    def shaped_rule_order(self, bonus: int = 0) -> int:
+        """Order of the triangle rule of :meth:`shaped_mass` (exact for psi_i w_j times a P_q shape)."""
+        return 2 * int(self.X.components[1].globalorder) + 1 + int(bonus)
+
     def shaped_mass(self, shape, bonus: int = 0) -> np.ndarray:
-        """M[i, K, j] = (psi_i shape, w_j)_K (shape None: 1; not kept: the shape changes with the iterate)."""
+        """M[i, K, j] = (psi_i shape, w_j)_K (shape None: 1; not kept: the shape changes with the iterate);
+        a shape with kinks (lam_h^+) is integrated by the fixed rule of :meth:`shaped_rule_order`."""
+        from ngsolve import TRIG, IntegrationRule
+
         w = self.X.components[1].TestFunction()
         M = np.empty((3, self.mesh.ne, self.nQ))
+        meas = dx(bonus_intorder=int(bonus)) if shape is None else \
+            dx(intrules={TRIG: IntegrationRule(TRIG, self.shaped_rule_order(bonus))})
         with TaskManager():
             for i, hat in enumerate(self.hats):
                 cf = hat if shape is None else hat * shape
-                M[i] = LinearForm(cf * w * dx(bonus_intorder=int(bonus))).Assemble().vec.FV().NumPy() \
-                    .reshape(self.mesh.ne, self.nQ)
+                M[i] = LinearForm(cf * w * meas).Assemble().vec.FV().NumPy().reshape(self.mesh.ne, self.nQ)
         return M
 
     def _patch_solve(self, gi, G, sl, rhs):
