@@ -353,6 +353,11 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
     vertex_dx, mass_dx = dx(intrules={TRIG: _vertex_rule()}), dx(intrules=rules["mass"])
     sig_d, data, patch_data = [], [], []
     t_flux = time.perf_counter()
+    lam_v = None
+    if use_p1 and batched:  # vertex values of lam^ (both fields), for the batched patch-constant sources
+        lam_v = vertex_function_values(disc, lam_p)
+        if lam_n is not None:
+            lam_v = lam_v + vertex_function_values(disc, lam_n)
     for a, fd in enumerate(fields):
         # m_alpha = s_alpha lam^ - r^_alpha; P1 functions by the patch-constant vertex device
         # (module doc of .flux), elementwise/dual ones exactly with the FE mass rule
@@ -362,13 +367,11 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         else:
             m = fd.sign * lam_hat if r is None else fd.sign * lam_hat - r
         vvals = None
-        if use_p1 and batched:  # vertex functions: exact patch-constant sources of the batched solver
+        if lam_v is not None:  # vertex functions: exact patch-constant sources of the batched solver
             vterm, mterm = None, None
-            vvals = fd.sign * vertex_function_values(disc, lam_p)
-            if lam_n is not None:
-                vvals += fd.sign * vertex_function_values(disc, lam_n)
+            vvals = fd.sign * lam_v
             if r is not None:
-                vvals -= vertex_function_values(disc, r)
+                vvals = vvals - vertex_function_values(disc, r)
         elif use_p1:  # P1 / elementwise-P1 vertex functions: the patch-constant vertex device
             vterm, mterm = _vertex_moment_term(mesh, m, q), None
         else:  # q >= 3: exact products with the FE mass rule
@@ -383,7 +386,8 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
                 out += -mterm * w * mass_dx
             return out
         patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=fbonus,
-                                    name=f"sigma_disc_{fd.name}", vertex_values=vvals))
+                                    name=f"sigma_disc_{fd.name}",
+                                    vertex_values=None if vvals is None else [(vvals, None)]))
     sig_d = equilibrate_all(mesh, q, patch_data, regularization=patch_regularization(disc, regularization),
                             solver=patch_solver(disc, q) if batched else None)
     t_flux = time.perf_counter() - t_flux

@@ -412,7 +412,7 @@ class PatchContactMultiplier:
         Psi, vol, _ = vertex_moments(disc)
         self.Psi, self.disc = Psi, disc
         ev = _element_vertices(disc)
-        contact = _contact_vertices(disc, y_marker, tol)[ev].all(axis=1)
+        contact = self.contact = _contact_vertices(disc, y_marker, tol)[ev].all(axis=1)
         self.n_contact_elements = int(contact.sum())
         self.V = Discontinuous(H1(mesh, order=1))  # dof 3K + i = value at vertex i of element K
         c_ = disc_cache(disc)
@@ -467,32 +467,28 @@ class ShapedContactMultiplier:
                  rule_order: Optional[int] = None):
         from ngsolve import IfPos
 
-        self.disc, self.low, self.high = disc, float(low), float(high)
+        self.low, self.high = float(low), float(high)
         self.const = PatchContactMultiplier(disc, y_marker, tol=tol)
-        mesh = disc.mesh
-        ev = _element_vertices(disc)
+        mesh, V = disc.mesh, self.const.V
         contact = GridFunction(L2(mesh, order=0), name="contact_elements")
-        contact.vec.FV().NumPy()[:] = _contact_vertices(disc, y_marker, tol)[ev].all(axis=1)
+        contact.vec.FV().NumPy()[:] = self.const.contact
         self.shape = contact * IfPos(lam_h, lam_h, 0.0)
-        V = Discontinuous(H1(mesh, order=1))
+        rule = data_rules(disc)["mass"] if rule_order is None else {TRIG: IntegrationRule(TRIG, int(rule_order))}
         with TaskManager():
-            rule = data_rules(disc)["mass"] if rule_order is None else {TRIG: IntegrationRule(TRIG, int(rule_order))}
             A = LinearForm(self.shape * V.TestFunction() * dx(intrules=rule)) \
                 .Assemble().vec.FV().NumPy().reshape(mesh.ne, 3)                 # (psi_i phi, 1)_K
-        self._ev = _element_vertices(disc)
+        self._ev = self.const._ev
         self._Aphi = np.bincount(self._ev.ravel(), weights=A.ravel(), minlength=mesh.nv)  # (psi_a phi, 1)
-        self.V = V
 
     def terms(self, functional: np.ndarray):
         """(lam^ CoefficientFunction, [(values, shape), (values, None)]) for a functional on the
         interior Lagrange basis (e.g. D X3)."""
         m = self.const.Psi.T @ np.asarray(functional, float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(self._Aphi > 0, m / np.where(self._Aphi > 0, self._Aphi, 1.0), -1.0)
+        s = np.where(self._Aphi > 0, m / np.where(self._Aphi > 0, self._Aphi, 1.0), -1.0)
         shaped = (s >= self.low) & (s <= self.high)
         vs = np.where(shaped[self._ev], s[self._ev], 0.0)                                   # (ne, 3)
         vc = np.where(shaped[self._ev], 0.0, self.const._coef * m[self._ev])               # (ne, 3)
-        gs, gc = GridFunction(self.V, name="lam_shape_coef"), GridFunction(self.V, name="lam_const")
+        gs, gc = GridFunction(self.const.V, name="lam_shape_coef"), GridFunction(self.const.V, name="lam_const")
         gs.vec.FV().NumPy()[:] = vs.ravel()
         gc.vec.FV().NumPy()[:] = vc.ravel()
         self.n_shaped = int(shaped.sum())
@@ -612,10 +608,10 @@ class PatchData:
     GridFunction), constant ``mu``, ``source`` (w -> SumOfIntegrals, the term -(g, w) before the
     hat weighting, or None), ``hessian`` (Laplacian of u in the integration by parts; False for
     P1), ``bonus_intorder`` of the flux terms, ``name`` of the result, and ``vertex_values``
-    (ne, 3) (batched solver only): a further patch-constant source, patch a sees -(psi_a g_a, w)
+    (batched solver only): further patch-constant sources, patch a sees -(psi_a g_a, w)
     with g_a|_K = vertex_values[K, i] for the local vertex i of K that is a (exact for every RT
     degree and on curved elements; the vertex device :func:`_vertex_moment_term` is the
-    ``PatchwiseSolve`` counterpart, exact for q <= 2 on affine elements), or a list of
+    ``PatchwiseSolve`` counterpart, exact for q <= 2 on affine elements), given as a list of
     (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`ShapedContactMultiplier`)."""
 
     u: object
@@ -651,24 +647,11 @@ def _patch_rhs(X, d: PatchData, flux_part: bool = True):
     return lf
 
 
-def _signed(vertex_values, sign):
-    """sign * vertex_values (array or list of (values, shape) pairs)."""
-    if vertex_values is None:
-        return None
-    if isinstance(vertex_values, np.ndarray):
-        return sign * vertex_values
-    return [(sign * v, shape) for v, shape in vertex_values]
-
-
 def _vertex_terms(d: PatchData):
-    """The ``vertex`` entry of :meth:`.patches.PatchSolver.solve` for ``d.vertex_values``: an (ne, 3)
-    array (patch constants) or a list of (values, shape) pairs (shape None: constants)."""
-    vv = d.vertex_values
-    if vv is None:
+    """The ``vertex`` entry of :meth:`.patches.PatchSolver.solve` for ``d.vertex_values``."""
+    if d.vertex_values is None:
         return None
-    if isinstance(vv, np.ndarray):
-        vv = [(vv, None)]
-    return [(values, d.bonus_intorder + 1, shape) for values, shape in vv]
+    return [(values, d.bonus_intorder + 1, shape) for values, shape in d.vertex_values]
 
 
 def _flux_operator(solver: PatchSolver, d: PatchData):
@@ -825,7 +808,7 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
         else:
             lam = PatchContactMultiplier(disc, y_sol)(disc.D * np.asarray(y_sol, float))
         if batched:  # patch-constant sources, exact for every q and on curved elements
-            vertex_values = vertex_function_values(disc, lam)
+            vertex_values = [(vertex_function_values(disc, lam), None)]
             lam_term = None
         else:
             lam_term, lam_dx = _vertex_moment_term(mesh, lam, q), dx(intrules={TRIG: _vertex_rule()})
@@ -846,7 +829,8 @@ def reconstruct_fluxes(disc, x_sol=None, y_sol=None, *, gfs: Optional[dict] = No
             return out if lam_term is None else out - fd.sign * lam_term(w) * lam_dx
         data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=bonus,
                               name=f"sigma_{fd.name}",
-                              vertex_values=_signed(vertex_values, fd.sign)))
+                              vertex_values=None if vertex_values is None else
+                              [(fd.sign * v, shape) for v, shape in vertex_values]))
     solver = patch_solver(disc, q) if batched else None
     sigmas = equilibrate_all(mesh, q, data, regularization=patch_regularization(disc, regularization),
                              solver=solver)
