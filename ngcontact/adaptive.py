@@ -76,7 +76,7 @@ def _solve(disc, x0, y0, options, cb, warm: bool = False):
 
     iopts = InexactOptions(mode=mode.replace("exact-gmres", "exact"), cfun=options.cfun, tol=options.tol,
                            maxit=options.maxit, gamma_alg=options.gamma_alg, gamma_lin=options.gamma_lin,
-                           nu=options.nu)
+                           nu=options.nu, ilu_drop_tol=options.ilu_drop_tol, ilu_fill=options.ilu_fill)
     return inexact_semismooth_newton(disc.system, x0, y0, iopts, callback=cb, disc=disc)
 
 

@@ -70,6 +70,10 @@ def _build_parser():
     r.add_argument("--gamma-balance", type=float, dest="gamma_balance",
                    help="with --newton-stop balanced: the ratio (default 1e-3)")
     r.add_argument("--nu", type=int, help="adaptive: GMRES iterations between estimator evaluations (default 10)")
+    r.add_argument("--ilu-drop", type=float, dest="ilu_drop_tol",
+                   help="GMRES modes: ILU drop tolerance (scipy spilu drop_tol, default 1e-5)")
+    r.add_argument("--ilu-fill", type=float, dest="ilu_fill",
+                   help="GMRES modes: ILU fill bound nnz(L+U) <= ILU_FILL nnz(A) (spilu fill_factor, default 8)")
     r.add_argument("--adaptive", action="store_true",
                    help="adaptive refinement (fem): solve -> estimate -> mark -> bisect, warm-started Newton")
     r.add_argument("--marking", choices=["doerfler", "max"], help="with --adaptive: marking strategy (default doerfler)")
@@ -126,6 +130,20 @@ def format_table(rows, title="") -> str:
     return "\n".join(lines)
 
 
+def _check_solver_options(args, newton: str) -> None:
+    """Options of the GMRES Newton modes given with a mode that does not use them: a usage error
+    (silently ignoring them would let a user believe they changed the run)."""
+    gmres = {"ilu_drop_tol": "--ilu-drop", "ilu_fill": "--ilu-fill"}
+    adaptive = {"gamma_alg": "--gamma-alg", "gamma_lin": "--gamma-lin", "nu": "--nu"}
+    used = [flag for name, flag in gmres.items() if getattr(args, name, None) is not None]
+    if used and newton == "exact":
+        raise _UsageError(f"option(s) {', '.join(used)} need --newton exact-gmres, inexact or adaptive "
+                          f"(the exact mode uses a direct solver)")
+    used = [flag for name, flag in adaptive.items() if getattr(args, name, None) is not None]
+    if used and newton != "adaptive":
+        raise _UsageError(f"option(s) {', '.join(used)} need --newton adaptive (got --newton {newton})")
+
+
 def _cmd_run(args, argv) -> int:
     from .results import write_run
     from .runner import RunOptions, run_scene
@@ -137,7 +155,7 @@ def _cmd_run(args, argv) -> int:
                  condense=False if args.no_condense else None, estimate=True if args.estimate else None,
                  newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu,
                  decouple=True if args.decouple else None, newton_stop=args.newton_stop,
-                 gamma_balance=args.gamma_balance)
+                 gamma_balance=args.gamma_balance, ilu_drop_tol=args.ilu_drop_tol, ilu_fill=args.ilu_fill)
     adaptive_opts = dict(marking=args.marking, theta=args.theta, max_ndof=args.max_ndof, target_eta=args.target_eta,
                          max_time=args.max_time, max_levels=args.max_levels)
     if not args.adaptive and any(v is not None for v in adaptive_opts.values()):
@@ -147,6 +165,7 @@ def _cmd_run(args, argv) -> int:
     if args.test:
         given = {**scene.test_options, **{k: v for k, v in given.items() if v is not None}}
     options = RunOptions.for_scene(scene, **given)
+    _check_solver_options(args, options.newton)
     out = Path(args.out or f"results/runs/{scene.name}-{options.disc}-p{options.order}")
     if options.adaptive and not args.out:
         out = out.with_name(out.name + "-adaptive")

@@ -140,6 +140,12 @@ class InexactOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 < v and math.isfinite(v)):
                 bad(name, "a positive number")
+        if isinstance(self.ilu_drop_tol, bool) or not (isinstance(self.ilu_drop_tol, (int, float))
+                                                       and 0 <= self.ilu_drop_tol < 1):
+            bad("ilu_drop_tol", "a number in [0, 1)")
+        if isinstance(self.ilu_fill, bool) or not (isinstance(self.ilu_fill, (int, float))
+                                                   and 1 <= self.ilu_fill < math.inf):
+            bad("ilu_fill", "a number >= 1")
         for name in ("nu", "maxit", "restart", "max_gmres"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
@@ -162,6 +168,7 @@ class InexactIterationRecord(IterationRecord):
     n_estimates: int = 0
     time_estimate: float = 0.0
     time_ilu: float = 0.0
+    ilu_fill_ratio: float = float("nan")  # nnz(L + U) / nnz(A) of the ILU of this step
 
 
 @dataclass
@@ -395,7 +402,8 @@ def inexact_semismooth_newton(
             n_changed=int((new_active != active).sum()), step=step, time_linear=time_linear,
             time_step=time.perf_counter() - t0, linear_size=lin.size,
             gmres_its=kr.iterations, gmres_cum=gmres_cum, gmres_accepted=i_acc, gmres_stop=GMRES_STOP[kr.reason],
-            res_alg=res_alg, n_estimates=n_est, time_estimate=t_est, time_ilu=M.time_setup)
+            res_alg=res_alg, n_estimates=n_est, time_estimate=t_est, time_ilu=M.time_setup,
+            ilu_fill_ratio=M.nnz / max(lin.A.nnz, 1))
         if comp is not None:
             rec.eta_disc, rec.eta_lin, rec.eta_alg = (float(comp.eta_disc), float(comp.eta_lin),
                                                       float(comp.eta_alg))

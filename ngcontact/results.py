@@ -79,8 +79,8 @@ factorization, 1 PCG preconditioned by an earlier step's factorization, 2 PCG ga
 the step was factorized), pcg_its (see :class:`ngcontact.newton.IterationRecord`); with --newton other than exact also
 gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
 3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),
-eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu
-(:class:`ngcontact.inexact.InexactIterationRecord`).
+eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu, ilu_fill_ratio
+(nnz(L+U)/nnz(A) of the step's ILU; :class:`ngcontact.inexact.InexactIterationRecord`).
 """
 from __future__ import annotations
 

@@ -45,6 +45,8 @@ class RunOptions:
     gamma_alg: float = 0.3  # adaptive: stop GMRES when eta_alg <= gamma_alg max(eta_disc, eta_lin)
     gamma_lin: float = 0.3  # adaptive: stop Newton when eta_lin <= gamma_lin eta_disc
     nu: int = 10  # GMRES iterations between estimator evaluations
+    ilu_drop_tol: float = 1e-5  # GMRES modes: ILU threshold (scipy spilu drop_tol; ngcontact.inexact)
+    ilu_fill: float = 8.0  # GMRES modes: ILU fill bound, nnz(L + U) <= ilu_fill nnz(A) (spilu fill_factor)
     newton_stop: str = "residual"  # exact Newton: 'residual' (||Phi||/||F|| <= tol) | 'balanced' (newton module doc)
     gamma_balance: float = 1e-3  # balanced: stop when eps_lin <= gamma_balance eps_disc (nested levels only)
     adaptive: bool = False  # solve -> estimate -> mark -> refine (ngcontact.adaptive) instead of uniform levels
@@ -91,6 +93,12 @@ class RunOptions:
                 bad(name, "a positive number")
         if isinstance(self.nu, bool) or not isinstance(self.nu, int) or self.nu < 1:
             bad("nu", "a positive integer")
+        v = self.ilu_drop_tol
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
+            bad("ilu_drop_tol", "a number in [0, 1)")
+        v = self.ilu_fill
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 1 <= v < float("inf"):
+            bad("ilu_fill", "a number >= 1")
         if self.newton_stop not in ("residual", "balanced"):
             bad("newton_stop", "'residual' or 'balanced'")
         if self.newton_stop == "balanced" and self.newton != "exact":
@@ -202,7 +210,8 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
 
             iopts = InexactOptions(mode=options.newton.replace("exact-gmres", "exact"), cfun=options.cfun,
                                    tol=options.tol, maxit=options.maxit, gamma_alg=options.gamma_alg,
-                                   gamma_lin=options.gamma_lin, nu=options.nu)
+                                   gamma_lin=options.gamma_lin, nu=options.nu,
+                                   ilu_drop_tol=options.ilu_drop_tol, ilu_fill=options.ilu_fill)
             sol = inexact_semismooth_newton(disc.system, x0, y0, iopts, callback=cb, disc=disc)
         t2 = time.perf_counter()
         errs = disc.errors(sol.x, sol.y)

@@ -58,6 +58,9 @@ def test_user_scene_without_exact_solution(tmp_path):
     (["run", "test1", "--cfun", "max"], "invalid choice"),
     (["run", "test1", "--tol", "abc"], "invalid float value"),
     (["run", "test1", "--newton-stop", "balanced", "--gamma-balance", "5"], "option gamma_balance must be"),
+    (["run", "test1", "--ilu-drop", "1e-6"], "--ilu-drop need --newton exact-gmres, inexact or adaptive"),
+    (["run", "test1", "--newton", "inexact", "--nu", "5"], "--nu need --newton adaptive"),
+    (["run", "test1", "--newton", "inexact", "--ilu-fill", "0.5"], "option ilu_fill must be a number >= 1"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_input_gives_one_line_and_exit_code_2(args, msg, capsys, tmp_path):

@@ -94,7 +94,8 @@ def test_stopping_predicates():
 
 def test_options_are_validated_by_name():
     for kw, name in [(dict(mode="fast"), "mode"), (dict(gamma_alg=0.0), "gamma_alg"), (dict(nu=0), "nu"),
-                     (dict(gamma_lin=-1.0), "gamma_lin"), (dict(tol_alg=2.0), "tol_alg")]:
+                     (dict(gamma_lin=-1.0), "gamma_lin"), (dict(tol_alg=2.0), "tol_alg"),
+                     (dict(ilu_drop_tol=-1e-6), "ilu_drop_tol"), (dict(ilu_fill=0.5), "ilu_fill")]:
         with pytest.raises(ValueError, match=name):
             InexactOptions(**kw)
 
@@ -193,3 +194,19 @@ def test_algebraic_flux_estimates_the_algebraic_error(disk):
         ratios.append(eta / algebraic_correction_norm(disk.disc, e))
     # ... and |||d||| -> |||e|||: a real estimate of the algebraic error |||u_h^k - u_h^{k,i}|||
     assert len(ratios) >= 2 and all(0.4 <= r <= 1.05 for r in ratios), ratios
+
+
+def test_ilu_options_reach_the_preconditioner(disk):
+    """A larger ILU fill is used (recorded fill ratio) and pays in GMRES iterations; same discrete solution."""
+    s, ref = disk.disc.system, disk.ref
+    runs = {}
+    for ilu in ((1e-4, 2.0), (1e-6, 15.0)):
+        res = inexact_semismooth_newton(s, disk.x0, disk.y0,
+                                        InexactOptions(mode="exact", ilu_drop_tol=ilu[0], ilu_fill=ilu[1]))
+        assert res.converged
+        assert np.linalg.norm(res.x - ref.x) <= 1e-8 * np.linalg.norm(ref.x)
+        fills = [r.ilu_fill_ratio for r in res.history[1:]]
+        assert all(1.0 <= f <= ilu[1] * 1.0001 for f in fills), fills
+        runs[ilu] = (res.gmres_total, float(np.mean(fills)))
+    (its_weak, fill_weak), (its_strong, fill_strong) = runs[(1e-4, 2.0)], runs[(1e-6, 15.0)]
+    assert fill_strong > fill_weak and its_strong < its_weak

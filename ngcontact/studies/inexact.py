@@ -20,6 +20,8 @@ carry the counters):
 * P2 on the same meshes fitted to r = 1/sqrt 2 (``disk_fitted``): direct, inexact and adaptive
   (on the unfitted meshes the jump of f inside elements makes the P2 estimator ~3.2 x the error,
   so the adaptive stopping rules stop early; on the fitted ones I_eff is 1.03-1.19);
+* P2 fitted, finest mesh: inexact and adaptive with two stronger ILU preconditioners
+  (:data:`ILUS`; the ILU fill against the iteration counts and the run time);
 * P1, the ~8k mesh: exact-gmres and inexact with the estimators evaluated after
   every Newton step (``log_estimators``) for the plot "estimators vs Newton
   iteration" (those evaluations are diagnostics, not part of the run time).
@@ -50,6 +52,8 @@ P1_MAXH = (0.06, 0.042, 0.03, 0.021, 0.0148)
 P2_MAXH = (0.06, 0.03, 0.0165)
 QUICK_P1, QUICK_P2 = (0.1, 0.07), (0.1,)
 GAMMAS = ((0.3, 0.3), (0.03, 0.3), (0.3, 0.03), (0.03, 0.03))
+#: ILU (drop_tol, fill_factor) of the study: the default (first) and the variants of the sensitivity table
+ILUS = ((1e-5, 8.0), (1e-6, 10.0), (1e-6, 15.0))
 #: modes run on the fitted P2 meshes (the accuracy check of the adaptive criteria with a sharp estimator)
 FITTED_MODES = ("exact", "inexact", "adaptive")
 
@@ -78,7 +82,7 @@ def _scene(maxh, fitted=False):
                  defaults={}, initial_guess=base.initial_guess)
 
 
-def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None, fitted=False):
+def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None, fitted=False, ilu=ILUS[0]):
     from ..results import write_run
     from ..runner import RunOptions, run_scene
 
@@ -88,7 +92,7 @@ def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None, fitte
         return d
     scene = _scene(maxh, fitted)
     opts = RunOptions(order=order, levels=1, start="cold", newton=newton, gamma_alg=gamma_alg,
-                      gamma_lin=gamma_lin, nu=10)
+                      gamma_lin=gamma_lin, nu=10, ilu_drop_tol=ilu[0], ilu_fill=ilu[1])
     t0 = time.perf_counter()
     res = run_scene(scene, opts)
     write_run(res, d, vtk=False, plots=False, argv=["python -m ngcontact.studies.inexact", name])
@@ -104,7 +108,8 @@ def _load(d):
     row = read_history(d / "history.csv")[-1]
     s = json.loads((d / "summary.json").read_text())
     row.update(newton=s["options"]["newton"], order=s["options"]["order"], gamma_alg=s["options"]["gamma_alg"],
-               gamma_lin=s["options"]["gamma_lin"], converged=s["converged"], run=d.name)
+               gamma_lin=s["options"]["gamma_lin"], converged=s["converged"], run=d.name,
+               ilu=(s["options"].get("ilu_drop_tol", ILUS[0][0]), s["options"].get("ilu_fill", ILUS[0][1])))
     if d.name.startswith("p2f-"):  # P2 on the fitted meshes: its own table ("order" key "2f")
         row["order"] = "2f"
     with open(d / "newton.csv") as fh:
@@ -193,7 +198,71 @@ def _fmt(v, f="{:.4g}"):
     return f.format(v)
 
 
+def _ilu_tag(ilu):
+    return f"ilu{ilu[0]:g}-{ilu[1]:g}"
+
+
+def _complete_lu_ratio(maxh):
+    """nnz(L + U) / nnz(A) of SuperLU's complete LU (same column ordering as spilu) of the first Newton
+    matrix of the P2 fitted run at ``maxh``: the fill an ILU approaches as drop_tol -> 0."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from ..cfunctions import get_cfunction
+    from ..discretizations.fem import FEMDiscretization
+
+    scene = _scene(maxh, fitted=True)
+    disc = FEMDiscretization(scene.problem, next(scene.problem.domain.meshes(1)), order=2)
+    x, y = disc.initial_guess(scene.initial_guess)
+    cf, system = get_cfunction("min"), disc.system
+    g = system.gap(x)
+    Ca, Cb = cf.jacobian(g, y)
+    A = sp.csc_matrix(system.linearize(x, y, cf.value(g, y), Ca, Cb).A)
+    lu = spla.splu(A)
+    return (lu.L.nnz + lu.U.nnz) / A.nnz
+
+
+def _ilu_table(rows, out):
+    """The ILU sensitivity table (P2 fitted, finest mesh), or [] without its runs."""
+    sel = [r for r in rows if r["order"] == "2f" and r["newton"] in ("inexact", "adaptive")]
+    if not sel or len({r["ilu"] for r in sel}) < 2:
+        return []
+    ne = max(r["nelem"] for r in sel)
+    sel = [r for r in sel if r["nelem"] == ne]
+    base = next((b for b in rows if b["order"] == "2f" and b["nelem"] == ne and b["newton"] == "exact"), None)
+    f = out / "complete_lu_fill.json"
+    if not f.is_file():
+        maxh = float(sel[0]["run"].split("-")[1][1:])  # run names p2f-h<maxh>-...
+        f.write_text(json.dumps({"nelem": ne, "maxh": maxh, "ratio": _complete_lu_ratio(maxh)}))
+    full = json.loads(f.read_text())
+    full = full["ratio"] if full.get("nelem") == ne else float("nan")
+    L = [f"## ILU sensitivity, P2 fitted, {ne} elements", "",
+         "The preconditioner's fill against the iteration counts and the run time (same runs otherwise; "
+         "`--ilu-drop`, `--ilu-fill` on the CLI). fill = nnz(L+U)/nnz(A) of the ILU, mean over the Newton steps; "
+         f"SuperLU's complete LU of the first Newton matrix has fill {_fmt(full, '{:.1f}')}.", "",
+         "| ILU (drop, fill bound) | fill | mode | Newton | GMRES total | GMRES accepted | GMRES 1st step "
+         "| err / err(direct) | solve [s] | of which estimators [s] | of which ILU setup [s] |",
+         "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for ilu in ILUS:
+        for mode in ("inexact", "adaptive"):
+            r = next((r for r in sel if r["ilu"] == ilu and r["newton"] == mode), None)
+            if r is None:
+                continue
+            its = r["iterations"][1:]
+            acc = sum(int(it.get("gmres_accepted") or 0) for it in its)
+            fills = [float(it["ilu_fill_ratio"]) for it in its if it.get("ilu_fill_ratio") not in (None, "")]
+            t_ilu = sum(float(it.get("time_ilu") or 0) for it in its)
+            ratio = r["err_energy"] / base["err_energy"] if base else float("nan")
+            L.append(f"| ({ilu[0]:g}, {ilu[1]:g}) | {_fmt(float(np.mean(fills)) if fills else None, '{:.1f}')} | "
+                     f"{mode} | {r['newton_its']} | {int(r['gmres_its'])} | {acc} | {int(r['gmres_first_step'])} | "
+                     f"{ratio:.4f} | {r['time_solve_s']:.1f} | {_fmt(r.get('time_estimate_newton_s'), '{:.1f}')} | "
+                     f"{t_ilu:.1f} |")
+    return L + [""]
+
+
 def _tables(rows, logs, out):
+    ilu_lines = _ilu_table(rows, out)
+    rows = [r for r in rows if r["ilu"] == ILUS[0]]  # the main tables: the default ILU
     L = ["# Inexact and adaptive inexact semismooth Newton: [JSC20] disk test", "",
          "Generated by `python -m ngcontact.studies.inexact` (`make inexact-study`) from the run directories in "
          "`runs/`. Newton-min, cold start X0 = [g, 0, 0], GMRES(100) + ILU (spilu drop 1e-5, fill 8) on the reduced "
@@ -256,6 +325,7 @@ def _tables(rows, logs, out):
                     L.append(f"| ({ga}, {gl}) | {r['newton_its']} | {r['gmres_its']} | {acc} | "
                              f"{r['err_energy']:.6e} | {ratio:.4f} | {PUBLISHED['gammas_35k'][(ga, gl)]} |")
         L.append("")
+    L += ilu_lines
     # next to the published numbers
     L += ["## Next to the published numbers ([JSC20], REFERENCE.md)", "", "| quantity | [JSC20] | ngcontact |",
           "|---|---|---|"]
@@ -312,6 +382,7 @@ def _tables(rows, logs, out):
                 for m in ("exact", "exact-gmres", "inexact", "adaptive")]
     expected += [f"p1-h{P1_MAXH[-1]:g}-adaptive-g{ga:g}-{gl:g}" for ga, gl in GAMMAS[1:]]
     expected += [f"p2f-h{h:g}-{m}" for h in P2_MAXH for m in FITTED_MODES]
+    expected += [f"p2f-h{P2_MAXH[-1]:g}-{m}-{_ilu_tag(ilu)}" for ilu in ILUS[1:] for m in ("inexact", "adaptive")]
     missing = [n for n in expected if not (out / "runs" / n / "summary.json").is_file()]
     if missing:
         L += ["Runs of the full study missing from `runs/` (interrupted or not run): " + ", ".join(missing) + ".", ""]
@@ -358,6 +429,10 @@ def main(argv=None) -> int:
         for h in p2 if not args.p1_only else ():
             for mode in FITTED_MODES:
                 dirs.append(_run(out, 2, h, mode, fitted=True))
+        for ilu in ILUS[1:] if p2 and not args.p1_only else ():
+            for mode in ("inexact", "adaptive"):
+                dirs.append(_run(out, 2, p2[-1], mode, fitted=True, ilu=ilu,
+                                 tag=f"p2f-h{p2[-1]:g}-{mode}-{_ilu_tag(ilu)}"))
     rows = [_load(d) for d in dirs]
     with open(out / "all.csv", "w", newline="") as fh:
         keys = ["run", "order", "newton", "gamma_alg", "gamma_lin", "nelem", "ndof", "newton_its", "gmres_its",
