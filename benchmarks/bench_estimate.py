@@ -1,7 +1,9 @@
 """Estimation time vs Newton time at ~1e5 dofs (issue 4 acceptance: estimate <= 2 x Newton).
 
     python -m benchmarks.bench_estimate [--out results/bench] [scene:p:level ...]
-    (default disk:1:4 test1:1:5 disk:2:3; ``make bench`` runs it after bench_contact)
+    (default disk:1:4 disk_fitted:1:4 test1:1:5 disk:2:3 disk_fitted:2:3; ``make bench`` runs it after
+    bench_contact; disk_fitted: the [JSC20] disk on meshes fitted to the contact circle, where the
+    published effectivity indices are reproduced)
 
 Per case, in one run: Newton-min cold start (scene initial guess), nested start (solve level - 1,
 prolongate), then ``estimate`` (Dirichlet correction on / "fast" / off) and
@@ -63,7 +65,8 @@ def run(scene_name, p, level):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="results/bench")
-    ap.add_argument("cases", nargs="*", default=["disk:1:4", "test1:1:5", "disk:2:3"])
+    ap.add_argument("cases", nargs="*", default=["disk:1:4", "disk_fitted:1:4", "test1:1:5", "disk:2:3",
+                                                       "disk_fitted:2:3"])
     a = ap.parse_args(argv)
     rows = []
     for c in a.cases:
