@@ -76,7 +76,8 @@ def _solve(disc, x0, y0, options, cb, warm: bool = False):
 
     iopts = InexactOptions(mode=mode.replace("exact-gmres", "exact"), cfun=options.cfun, tol=options.tol,
                            maxit=options.maxit, gamma_alg=options.gamma_alg, gamma_lin=options.gamma_lin,
-                           nu=options.nu, ilu_drop_tol=options.ilu_drop_tol, ilu_fill=options.ilu_fill)
+                           nu=options.nu, ilu_drop_tol=options.ilu_drop_tol, ilu_fill=options.ilu_fill,
+                           flux_order=options.flux_order)
     return inexact_semismooth_newton(disc.system, x0, y0, iopts, callback=cb, disc=disc)
 
 
@@ -140,7 +141,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
         errs = disc.errors(sol.x, sol.y)
         comp = disc.complementarity(sol.x, sol.y)
         t4 = time.perf_counter()
-        est = estimate(disc, sol.x, sol.y, errors=False)
+        est = estimate(disc, sol.x, sol.y, errors=False, flux_order=options.flux_order)
         if "err_energy" in errs:
             est.err_energy = errs["err_energy"]
         est_cols = est.summary()

@@ -40,6 +40,7 @@ class RunOptions:
     solver: str = "sparsecholesky"
     condense: bool = True  # hho: static condensation inside every Newton step
     estimate: bool = False  # a posteriori estimators per level (fem)
+    flux_order: Optional[int] = None  # RT degree q of the estimators' flux: p (default) or p + 1 (~2x time; cli help)
     decouple: bool = False  # two membranes, K = blockdiag(S, alpha S): Newton on w = u1 - u2 only (newton.decoupled_newton)
     newton: str = "exact"  # 'exact' (direct solves) | 'exact-gmres' | 'inexact' | 'adaptive' (ngcontact.inexact)
     gamma_alg: float = 0.3  # adaptive: stop GMRES when eta_alg <= gamma_alg max(eta_disc, eta_lin)
@@ -83,6 +84,9 @@ class RunOptions:
             bad("estimate", "True or False")
         if self.estimate and self.disc not in ESTIMATED:
             bad("estimate", f"False for disc {self.disc!r} (estimators exist for {sorted(ESTIMATED)})")
+        if self.flux_order is not None and (isinstance(self.flux_order, bool) or not isinstance(self.flux_order, int)
+                                            or self.flux_order not in (self.order, self.order + 1)):
+            bad("flux_order", f"None, {self.order} or {self.order + 1} (the order p or p + 1)")
         if self.newton not in NEWTON_MODES:
             bad("newton", f"one of {NEWTON_MODES}")
         if self.newton != "exact" and self.disc != "fem":
@@ -211,7 +215,8 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             iopts = InexactOptions(mode=options.newton.replace("exact-gmres", "exact"), cfun=options.cfun,
                                    tol=options.tol, maxit=options.maxit, gamma_alg=options.gamma_alg,
                                    gamma_lin=options.gamma_lin, nu=options.nu,
-                                   ilu_drop_tol=options.ilu_drop_tol, ilu_fill=options.ilu_fill)
+                                   ilu_drop_tol=options.ilu_drop_tol, ilu_fill=options.ilu_fill,
+                                   flux_order=options.flux_order)
             sol = inexact_semismooth_newton(disc.system, x0, y0, iopts, callback=cb, disc=disc)
         t2 = time.perf_counter()
         errs = disc.errors(sol.x, sol.y)
@@ -221,7 +226,7 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
         if options.estimate:
             from .estimators import estimate
 
-            est = estimate(disc, sol.x, sol.y, errors=False)
+            est = estimate(disc, sol.x, sol.y, errors=False, flux_order=options.flux_order)
             if "err_energy" in errs:
                 est.err_energy = errs["err_energy"]
             est_cols = est.summary()

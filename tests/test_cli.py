@@ -61,6 +61,8 @@ def test_user_scene_without_exact_solution(tmp_path):
     (["run", "test1", "--ilu-drop", "1e-6"], "--ilu-drop need --newton exact-gmres, inexact or adaptive"),
     (["run", "test1", "--newton", "inexact", "--nu", "5"], "--nu need --newton adaptive"),
     (["run", "test1", "--newton", "inexact", "--ilu-fill", "0.5"], "option ilu_fill must be a number >= 1"),
+    (["run", "test1", "--flux-order", "2"], "--flux-order needs --estimate, --adaptive or --newton adaptive"),
+    (["run", "test1", "--estimate", "--order", "2", "--flux-order", "4"], "option flux_order must be None, 2 or 3"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_input_gives_one_line_and_exit_code_2(args, msg, capsys, tmp_path):
@@ -139,3 +141,20 @@ def test_bad_thread_setting_names_the_variable(monkeypatch, capsys, tmp_path):
     monkeypatch.setenv("NGCONTACT_THREADS", "two")
     assert main(["run", "test1", "--levels", "1", "--out", str(tmp_path / "o")]) == 2
     assert "NGCONTACT_THREADS" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_flux_order_option_reaches_the_estimator(tmp_path):
+    """--flux-order p+1: the estimator uses RT_{p+1} (recorded), the bound stays guaranteed."""
+    out = tmp_path / "q"
+    assert main(["run", "test1", "--order", "2", "--levels", "2", "--estimate", "--flux-order", "3",
+                 "--out", str(out), "-q", "--no-vtk", "--no-plots"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["options"]["flux_order"] == 3
+    rows = list(csv.DictReader(open(out / "history.csv")))
+    assert all(float(r["i_eff"]) >= 1.0 for r in rows)
+    ref = tmp_path / "p"
+    assert main(["run", "test1", "--order", "2", "--levels", "2", "--estimate",
+                 "--out", str(ref), "-q", "--no-vtk", "--no-plots"]) == 0
+    base = list(csv.DictReader(open(ref / "history.csv")))
+    assert [r["err_energy"] for r in rows] == [r["err_energy"] for r in base]  # same solutions
+    assert all(abs(float(a["eta"]) / float(b["eta"]) - 1) > 1e-6 for a, b in zip(rows, base))  # another flux
