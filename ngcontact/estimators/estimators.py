@@ -670,21 +670,6 @@ def concentrated_multiplier(qa: QuadratureArrays, lam_vals, gap_vals, h, C_mu: f
 
 
 # ----------------------------------------------------------------- estimate
-def default_flux_order(p: int) -> int:
-    """RT degree q of the flux of :func:`estimate` by default: p, except p + 1 for p = 3.
-
-    Measured with both degrees on the same solutions (guaranteed bounds either way): for P3,
-    RT_4 lowers I_eff at the re-entrant corner and on coarse adaptive meshes (L-shape P3 uniform
-    level 2: 1.372 -> 1.260; adaptive L-shape P3 levels in [1, 1.3]: 46 % -> 75 %; adaptive test 1
-    P3: 11 % -> 22 %), is neutral on the disk (fitted 1.0036 -> 1.0026, unfitted 4.70 -> 4.64) and
-    slightly worse on uniform test 1 T1-T2 (1.210 -> 1.230, 1.146 -> 1.174), at 1.3-1.5x the
-    estimation time.  For P2, RT_3 also lowers I_eff on test 1 / L-shape (by 0.02-0.2) but doubles the
-    time on curved meshes (two multipliers for RT_3 instead of the fit alone): kept at RT_2.  P4:
-    not measured, RT_4.
-    """
-    return p + 1 if p == 3 else p
-
-
 def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, errors: bool = True,
              friedrichs: Optional[float] = None, flux_order: Optional[int] = None,
              bonus_intorder: Optional[int] = None, dirichlet_correction=True, concentrate: Optional[bool] = None,
@@ -703,7 +688,7 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     friedrichs : float, optional
         override C_F (default :func:`friedrichs_constant`).
     flux_order : int, optional
-        RT degree (default :func:`default_flux_order`: p, p + 1 for p = 3).
+        RT degree (default p).
     bonus_intorder : int, optional
         extra quadrature order of the estimator integrals (default
         ``disc.quad_bonus + 4``: data are not polynomial).
@@ -730,13 +715,13 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     """
     t0 = time.perf_counter()
     mesh, p = disc.mesh, disc.order
-    q = default_flux_order(p) if flux_order is None else int(flux_order)
+    q = p if flux_order is None else int(flux_order)
     pair = None
     if flux is None and multiplier is None and p >= 2:
         pair = ("fit", "shape") if q >= 3 else ("contact", "shape") if vertex_device_exact(disc, q) else None
     if pair:
         # two admissible multipliers, two guaranteed bounds: keep the smaller (module doc, "Multiplier")
-        kw = dict(errors=False, friedrichs=friedrichs, flux_order=q, bonus_intorder=bonus_intorder,
+        kw = dict(errors=False, friedrichs=friedrichs, flux_order=flux_order, bonus_intorder=bonus_intorder,
                   dirichlet_correction=dirichlet_correction, concentrate=concentrate)
         both = [estimate(disc, x_sol, y_sol, multiplier=m, **kw) for m in pair]
         best = min(both, key=lambda e: e.eta)
@@ -748,7 +733,7 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
         return best
     gfs = disc.gridfunctions(x_sol, y_sol)
     if flux is None:
-        flux = reconstruct_fluxes(disc, y_sol=y_sol, gfs=gfs, order=q, multiplier=multiplier)
+        flux = reconstruct_fluxes(disc, y_sol=y_sol, gfs=gfs, order=flux_order, multiplier=multiplier)
     bonus = disc.quad_bonus + 4 if bonus_intorder is None else int(bonus_intorder)
     dxq = dx(bonus_intorder=bonus)
     prob, fields = disc.problem, flux.fields
