@@ -754,7 +754,13 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     with TaskManager():
         area = ew(CoefficientFunction(1.0), dx)
         # corrected solution u~_h = u_h + w_h (exact Dirichlet trace)
-        ws, eta_bc, eps_w, bc_K = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
+        # w_h depends only on the boundary trace of u_h, i.e. on the discretization's Dirichlet values
+        # (x_sol holds interior nodes only): computed once per discretization and mode (shared with
+        # .components, the two multipliers of the default estimate and every later call)
+        key = ("bc", dirichlet_correction)
+        if key not in cache:
+            cache[key] = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
+        ws, eta_bc, eps_w, bc_K = cache[key]
         vals, grads, gap, ggap = _corrected_fields(prob, fields, ws)
 
         # flux and residual estimators, element means of the residual
