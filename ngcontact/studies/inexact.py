@@ -435,7 +435,7 @@ def main(argv=None) -> int:
                                  tag=f"p2f-h{p2[-1]:g}-{mode}-{_ilu_tag(ilu)}"))
     rows = [_load(d) for d in dirs]
     with open(out / "all.csv", "w", newline="") as fh:
-        keys = ["run", "order", "newton", "gamma_alg", "gamma_lin", "nelem", "ndof", "newton_its", "gmres_its",
+        keys = ["run", "order", "newton", "gamma_alg", "gamma_lin", "ilu", "nelem", "ndof", "newton_its", "gmres_its",
                 "gmres_first_step", "gmres_max_step", "err_energy", "eta_disc_final", "eta_lin_final",
                 "eta_alg_final", "n_estimates", "time_solve_s", "time_linear_s", "time_estimate_newton_s",
                 "converged"]
