@@ -408,11 +408,8 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, flux_order=No
         if "area" not in cache:
             cache["area"] = ew(CoefficientFunction(1.0), dx)
         area = cache["area"]
-        # Dirichlet correction: depends only on the boundary trace of u_h, fixed along the iterations
-        key = ("bc", dirichlet_correction)
-        if key not in cache:
-            cache[key] = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
-        ws, eta_bc, eps_w, _ = cache[key]
+        # Dirichlet correction: depends only on the boundary trace of u_h, fixed along the iterations (cached)
+        ws, eta_bc, eps_w, _ = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
         exact_bc = all(w is None for w in ws)
         vals, grads, gap, ggap = _corrected_fields(prob, fields, ws)
 

@@ -541,12 +541,20 @@ def _dirichlet_correction(disc, fields, k: int, rt_order: int, layers: Optional[
 
 
 def _dirichlet_lifting(disc, fields, p: int, mode):
-    """(ws, eta_bc, eps_w) of :func:`_dirichlet_correction` with w_h in P_{p+2}; ``mode``:
-    True (rho in curl P_{p+3}), "fast" (curl P_{p+2}) or False (no correction)."""
+    """(ws, eta_bc, eps_w, bc_K) of :func:`_dirichlet_correction` with w_h in P_{p+2}; ``mode``:
+    True (rho in curl P_{p+3}), "fast" (curl P_{p+2}) or False (no correction).
+
+    w_h depends only on the boundary trace of u_h, i.e. on the discretization's Dirichlet values (the
+    algebraic solution holds interior nodes only): computed once per discretization and mode, shared by
+    :func:`estimate` (both multipliers of the default estimate, later calls) and :mod:`.components`."""
     if not mode:
         return [None] * len(fields), 0.0, 0.0, None
-    k = p + 2
-    return _dirichlet_correction(disc, fields, k, k - 1 if mode == "fast" else k)
+    cache = disc_cache(disc)
+    key = ("bc", mode)
+    if key not in cache:
+        k = p + 2
+        cache[key] = _dirichlet_correction(disc, fields, k, k - 1 if mode == "fast" else k)
+    return cache[key]
 
 
 def _corrected_fields(prob, fields, ws):
@@ -754,13 +762,7 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     with TaskManager():
         area = ew(CoefficientFunction(1.0), dx)
         # corrected solution u~_h = u_h + w_h (exact Dirichlet trace)
-        # w_h depends only on the boundary trace of u_h, i.e. on the discretization's Dirichlet values
-        # (x_sol holds interior nodes only): computed once per discretization and mode (shared with
-        # .components, the two multipliers of the default estimate and every later call)
-        key = ("bc", dirichlet_correction)
-        if key not in cache:
-            cache[key] = _dirichlet_lifting(disc, fields, p, dirichlet_correction)
-        ws, eta_bc, eps_w, bc_K = cache[key]
+        ws, eta_bc, eps_w, bc_K = _dirichlet_lifting(disc, fields, p, dirichlet_correction)  # cached per disc
         vals, grads, gap, ggap = _corrected_fields(prob, fields, ws)
 
         # flux and residual estimators, element means of the residual
