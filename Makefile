@@ -18,7 +18,7 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m ngcontact demo --out results/demo
 
-## test: fast test suite (a few minutes on 2 cores)
+## test: fast test suite (about 2 minutes on 2 cores, venv bootstrap included)
 test: $(STAMP)
 	$(PY) -m pytest -q tests ngcontact
 

@@ -4,7 +4,7 @@ Same data and exact solution as the ``test2`` scene (unit square, lam = 8 R^2 fo
 outside, f1 and f2 jump across r = R), but the coarse mesh has a curved internal line on the circle
 r = R (netgen geometry with two subdomains), so the data are smooth on every element.  On the
 criss-cross meshes of ``test2`` the jump cuts elements: the P2 error and the data oscillation part
-of the estimator are then both O(h^1.5) and I_eff stays at 2.5-4 (README, issue 4 notes).
+of the estimator are then both O(h^1.5) and I_eff stays at 1.9-2.9 (results/estimators/TABLES.md).
 """
 from dataclasses import replace
 

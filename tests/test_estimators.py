@@ -124,9 +124,9 @@ def test_disk_fitted_p2_effectivity():
     """Disk P2 on meshes fitted to the free boundary (issue 4 acceptance: P2 <= 1.2): 1 <= I_eff <= 1.2 on
     every level.
 
-    Measured: 1.185, 1.081, 1.047 (levels 0-2) with the contact-weighted fit of lam^ (curved elements) and
-    the direct bound (eta_nonc,1 paid once); 1.421, 1.185, 1.107 with the patch constants and the seed's
-    route; the continuous P1 lam^ gave 2.69, 3.31, 4.42, 6.07.
+    Measured: 1.193, 1.081, 1.047 (levels 0-2, results/estimators/TABLES.md) with the contact-weighted fit of
+    lam^ (curved elements) and the direct bound (eta_nonc,1 paid once); earlier 1.421, 1.185, 1.107 with the
+    patch constants and the seed's route; the continuous P1 lam^ gave 2.69, 3.31, 4.42, 6.07.
     """
     rows = study("disk_fitted", 2)
     for row in rows:
@@ -231,8 +231,8 @@ def test_nonconformity_estimator_sees_a_kg_violation():
 def test_estimation_time_vs_newton_at_1e5_dofs():
     """Benchmark (issue 4): estimation <= 2 x Newton solve time, disk P1 level 4 (103491 dofs).
 
-    Measured (2 cores, loaded machine): estimate 4.7 s (fluxes 3.8 s), Newton-min cold
-    start 5.8 s (20 its): ratio 0.8; nested start 1.2 s (4 its): ratio 4.0.
+    Measured (results/bench/ESTIMATE.md, one run): estimate 4.63 s (first call), Newton-min cold
+    start 5.40 s (20 its): ratio 0.86; nested start 1.58 s (4 its): ratio 2.93.
     """
     import time
 
@@ -417,12 +417,13 @@ def test_dirichlet_correction_enters_the_marking_indicators():
 
 
 def test_test2_fitted_p2_effectivity_decreases_to_published_range():
-    """Test 2, P2, on meshes fitted to r = R (the jump of f and lam): the error converges at rate 2 (1.5 on the
-    criss-cross meshes) and I_eff decreases level by level to <= 1.2 (unfitted: 1.905 -> 2.939 on T0-T4, growing).
+    """Test 2, P2, on meshes fitted to r = R (the jump of f and lam): the error converges at rate 2 (on the
+    criss-cross meshes: 1.93, 1.76, 1.83, 1.67 on T1-T4) and I_eff decreases level by level to <= 1.2
+    (unfitted: 1.905 -> 2.939 on T0-T4, growing).
 
-    Measured (cold start, results/estimators/TABLES.md): I_eff 1.441, 1.247, 1.130, 1.073 (levels 0-3; before the contact-weighted lam^ on
-    curved elements and the direct bound: 2.208, 1.586, 1.325, 1.199 on levels 0-3); the coarse levels are
-    dominated by the Dirichlet-data terms eta_bc, eps_w and eta_nonc,1.
+    Measured (cold start, results/estimators/TABLES.md): I_eff 1.441, 1.247, 1.130, 1.073 (levels 0-3;
+    before the contact-weighted lam^ on curved elements and the direct bound: 2.208, 1.586, 1.325, 1.199);
+    the coarse levels are dominated by the Dirichlet-data terms eta_bc, eps_w and eta_nonc,1.
     """
     rows = study("test2_fitted", 2)
     effs = [r["est"].i_eff for r in rows]
@@ -436,7 +437,8 @@ def test_test2_fitted_p2_effectivity_decreases_to_published_range():
 def test_curved_patch_regularization_keeps_test2_fitted_p2_sharp_on_level_4():
     """Regression (flux.patch_regularization): with eps = 1e-12 on curved meshes one interface patch of
     test2_fitted P2 level 4 (88131 dofs) amplified the quadrature incompatibility of its data and alone made
-    I_eff 4.85; eps = 1e-10 gives 1.122 (1e-8, 1e-6 the same to 4 digits)."""
+    I_eff 4.85; eps = 1e-10 gave 1.122 (1e-8, 1e-6 the same to 4 digits; PatchwiseSolve, before the direct
+    bound); the default estimate now gives 1.044 (results/estimators/TABLES.md, T4)."""
     scene = load_scene("test2_fitted")
     mesh = list(scene.problem.domain.meshes(5))[-1]
     disc = FEMDiscretization(scene.problem, mesh, order=2)

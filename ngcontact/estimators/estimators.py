@@ -20,9 +20,10 @@ the patch-constant :class:`.flux.PatchContactMultiplier` (exact vertex device), 
 contact-weighted P1 fit :class:`.flux.ContactMultiplier` (fitted disk P3: I_eff 1.005 against
 4.7 for the other) -- and :class:`.flux.ShapedContactMultiplier`, patch sources
 psi_a s_a lam_h^+ that follow a smooth lam inside the contact set on coarse elements, where an
-elementwise P1 function cannot (L-shape P3 on an adaptive mesh of 4062 unknowns: I_eff 1.906 ->
-1.417, eta_F 1.007e-2 -> 7.31e-3 for an error of 5.71e-3; L-shape P2 adaptive, 1272 / 1506 /
-2040 unknowns: 1.305 / 1.340 / 1.325 -> 1.236 / 1.213 / 1.188).  On curved P2 elements only the
+elementwise P1 function cannot (measured when introduced: L-shape P3 on an adaptive mesh of 4062
+unknowns: I_eff 1.906 -> 1.417, eta_F 1.007e-2 -> 7.31e-3 for an error of 5.71e-3; L-shape P2 adaptive,
+1272 / 1506 / 2040 unknowns: 1.305 / 1.340 / 1.325 -> 1.236 / 1.213 / 1.188; the adaptive meshes have
+changed since, current values in results/sweep/runs/lshape-adaptive-p*/history.csv).  On curved P2 elements only the
 fit is used (it was always the smaller: fitted disk P2 1.193 / 1.081 / 1.047 against 1.221 /
 1.124 / 1.130).  :attr:`Estimate.multiplier` says which one was kept; the time is that of both.
 
@@ -104,8 +105,9 @@ A = eta_FR + eta_quad + eta_nonc,1 + eta_nonc,2, B = Theta + sum_K eta_C,K / 2, 
 
     eta_direct = A/2 + (A^2/4 + max(B, 0))^{1/2} >= |||u - u~_h|||.
 
-Measured (P2, levels 0-2): disk with fitted interface I_eff 1.421, 1.185, 1.107 -> 1.185,
-1.081, 1.047; test 2 fitted 1.586 -> 1.247 on level 1; test 2 fitted P1 1.683 -> 1.451 on level 0.
+Measured when introduced (P2, levels 0-2): disk with fitted interface I_eff 1.421, 1.185, 1.107 ->
+1.185, 1.081, 1.047; test 2 fitted 1.586 -> 1.247 on level 1; test 2 fitted P1 1.683 -> 1.451 on level 0
+(current values, with later changes: results/estimators/TABLES.md, e.g. fitted disk P2 1.193, 1.081, 1.047).
 
 eta_nonc,2 when lam^_h < 0 somewhere (Newton iterates, or the dual-basis
 lam_h for p >= 3).  The seed takes lam~ = (lam_h)^pos and eta_nonc,2 =
@@ -709,7 +711,7 @@ def estimate(disc, x_sol, y_sol, *, flux: Optional[FluxReconstruction] = None, e
     dirichlet_correction : bool or "fast"
         correct non-polynomial Dirichlet data by w_h (eta_bc, eps_w; w_h in
         P_{p+2}, rho in RT_{p+2}); ``"fast"`` uses RT_{p+1} for rho (about 4x
-        cheaper, eps_w slightly larger: I_eff 1.24 instead of 1.21 on test 1,
+        cheaper, eps_w slightly larger: I_eff 1.194 instead of 1.166 on test 1,
         P1, T3); False assumes exact data (eta then is not guaranteed for
         non-polynomial g).
     multiplier : {"contact", "fit", "shape", "p1", "dual"}, optional

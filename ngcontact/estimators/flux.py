@@ -78,8 +78,9 @@ Further implementation notes:
   not exact, the patch data are compatible only up to that quadrature error,
   which the near-singular solve amplifies by 1/eps: with eps = 1e-12 one patch on
   the interface of ``test2_fitted`` (P2, level 4, 88k dofs) got a flux defect
-  that alone made I_eff 4.85; eps = 1e-10 gives 1.122 (1e-8, 1e-6: the same to 4
-  digits), hence :func:`patch_regularization`.
+  that alone made I_eff 4.85; eps = 1e-10 gave 1.122 (1e-8, 1e-6: the same to 4
+  digits; measured with PatchwiseSolve before the direct bound, the default estimate now gives 1.044),
+  hence :func:`patch_regularization`.
 * Curved elements (disk, p >= 2): div sigma = (div-hat sigma-hat) / det J is
   not a mapped polynomial, so equilibration holds in the moment sense
   Pi_q (f + s lam^_h - div sigma) = 0 (checked to 1e-11 on the disk test); the
@@ -319,7 +320,9 @@ class ContactMultiplier:
     The patch source integrates lam^ psi_a w with the FE mass rule, as M_w is assembled, so the
     moments are matched to round-off also on curved elements (where the vertex device is not
     exact: P2 on the fitted disk / test 2 meshes, I_eff 1.363, 1.147, 1.084 / 1.809, 1.410, 1.232
-    on levels 0-2 against 1.421, 1.185, 1.107 / 2.208, 1.586, 1.324 with the patch constants).
+    on levels 0-2 against 1.421, 1.185, 1.107 / 2.208, 1.586, 1.324 with the patch constants, measured
+    when introduced, before the direct bound; now 1.193, 1.081, 1.047 / 1.441, 1.247, 1.130,
+    results/estimators/TABLES.md).
 
     Parameters
     ----------

@@ -18,7 +18,8 @@ carry the counters):
 * P1, finest mesh: adaptive with (gamma_alg, gamma_lin) in {0.3, 0.03}^2;
 * P2: the same three modes on the P2 meshes;
 * P2 on the same meshes fitted to r = 1/sqrt 2 (``disk_fitted``): direct, inexact and adaptive
-  (on the unfitted meshes the jump of f inside elements makes the P2 estimator ~3.2 x the error,
+  (on the unfitted meshes the jump of f inside elements makes the P2 estimator 3.0-3.3 x the error
+  (eta_disc 2.5-2.8 x at the adaptive runs' accepted iterates),
   so the adaptive stopping rules stop early; on the fitted ones I_eff is 1.03-1.19);
 * P2 fitted, finest mesh: inexact and adaptive with two stronger ILU preconditioners
   (:data:`ILUS`; the ILU fill against the iteration counts and the run time);
