@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-slow venv clean
+.PHONY: demo test test-slow venv clean help
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,6 +12,12 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[test]'
 	touch $(STAMP)
 
+## help: list the targets with their descriptions
+help:
+	@awk '/^## [a-z-]+:/ { b = 1; sub(/^## /, ""); print "  " $$0; next } \
+	      b && /^##/ { sub(/^## */, ""); print "      " $$0; next } { b = 0 }' $(MAKEFILE_LIST)
+
+## venv: create .venv and install the package (every target does this first)
 venv: $(STAMP)
 
 ## demo: test 1 of [CAMWA21], FEM P1 and P2 on T0..T3 -> results/demo/
@@ -26,6 +32,7 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "" tests ngcontact
 
+## clean: remove the CLI's default run directories (results/runs) and pytest's cache
 clean:
 	rm -rf results/runs .pytest_cache
 

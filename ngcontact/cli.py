@@ -1,15 +1,19 @@
-"""Command line: ``python -m ngcontact {run,list,plot,demo}``.
+"""Command line: ``python -m ngcontact {run,list,plot,table,demo}``.
 
 Examples::
 
     python -m ngcontact run test1 --order 2 --levels 5
+    python -m ngcontact run lshape --order 3 --adaptive --max-ndof 50000
     python -m ngcontact run path/to/my_scene.py --cfun fb --out out/my
     python -m ngcontact list
     python -m ngcontact plot out/a out/b --out compare.png
+    python -m ngcontact table out/a out/b --out tables.md
 
 Bad input (unknown scene, scene with an error, bad option or data) prints
 one line ``ngcontact: error: ...`` and exits with code 2; no partial
-outputs are left.  If Newton does not converge on some level, the outputs
+outputs are left (also on Ctrl-C, exit 130, and SIGTERM, exit 143).  ``--out`` must be a
+new or empty directory or a previous run directory (with summary.json), which is replaced;
+it is checked before any computation.  If Newton does not converge on some level, the outputs
 are written with ``"converged": false`` in summary.json and the exit code is 3.
 """
 from __future__ import annotations
@@ -38,10 +42,12 @@ def _build_parser():
     p.add_argument("--debug", action="store_true", help="show tracebacks (anywhere on the line)")
     sub = p.add_subparsers(dest="cmd", parser_class=_Parser)
 
-    r = sub.add_parser("run", help="solve a scene on a sequence of uniformly refined meshes")
+    r = sub.add_parser("run", help="solve a scene on uniformly refined meshes (--levels) or adaptively (--adaptive)")
     r.add_argument("scene", help="scene name in cases/ (see `list`) or path to a scene .py file")
-    r.add_argument("--order", type=int, help="polynomial degree p (fem: 1..4)")
-    r.add_argument("--levels", type=int, help="number of mesh levels (T0..T_{L-1})")
+    r.add_argument("--order", type=int, help="polynomial degree p (fem: 1..4; default: the scene's DEFAULTS, else 1)")
+    r.add_argument("--levels", type=int,
+                   help="uniform runs: number of mesh levels T0..T_{L-1} (default: the scene's DEFAULTS, else 4); "
+                        "with --adaptive use --max-levels")
     r.add_argument("--disc", choices=["fem", "hho", "sipg", "nipg", "iipg"],
                    help="discretization: fem (conforming P_p), hho (hybrid high-order), sipg/nipg/iipg (dG)")
     r.add_argument("--cfun", choices=["min", "fb"], help="C-function: min (Newton-min) or fb (Fischer-Burmeister)")
@@ -54,9 +60,9 @@ def _build_parser():
                    help="hho: solve the full system instead of the statically condensed face system")
     r.add_argument("--estimate", action="store_true",
                    help="a posteriori estimators per level (fem): eta, components, I_eff, eta_K maps")
-    r.add_argument("--flux-order", type=int, dest="flux_order",
+    r.add_argument("--flux-order", dest="flux_order", metavar="{p,p+1}",
                    help="with --estimate, --adaptive or --newton adaptive: RT degree of the equilibrated flux, p "
-                        "(default) or p+1. p+1 is often a tighter bound on coarse and adaptive meshes (L-shape P3 "
+                        "(default) or p+1 (also as a number). p+1 is often a tighter bound on coarse and adaptive meshes (L-shape P3 "
                         "1.37 -> 1.26; adaptive L-shape P3 levels with I_eff <= 1.3: 46 -> 75 %%), not always (test1 "
                         "P3 T1 1.21 -> 1.23), at 1.3-2x the estimation time")
     r.add_argument("--decouple", action="store_true",
@@ -66,9 +72,9 @@ def _build_parser():
                    help="Newton linear solves: exact (direct, default), exact-gmres (GMRES+ILU to ||R||/||B|| <= 2e-12), "
                         "inexact (GMRES, forcing term), adaptive (GMRES, estimator-based stopping [JSC20]); fem only")
     r.add_argument("--gamma-alg", type=float, dest="gamma_alg",
-                   help="adaptive: stop GMRES when eta_alg <= GAMMA_ALG max(eta_disc, eta_lin) (default 0.3)")
+                   help="adaptive: stop GMRES when eta_alg <= GAMMA_ALG max(eta_disc, eta_lin), in (0, 1) (default 0.3)")
     r.add_argument("--gamma-lin", type=float, dest="gamma_lin",
-                   help="adaptive: stop Newton when eta_lin <= GAMMA_LIN eta_disc (default 0.3)")
+                   help="adaptive: stop Newton when eta_lin <= GAMMA_LIN eta_disc, in (0, 1) (default 0.3)")
     r.add_argument("--newton-stop", choices=["residual", "balanced"], dest="newton_stop",
                    help="exact Newton: stop on ||Phi||/||F|| <= tol (residual, default) or also when the linearization "
                         "defect is below GAMMA_BALANCE x the coarse-to-fine change (balanced, nested levels)")
@@ -87,10 +93,13 @@ def _build_parser():
     r.add_argument("--target-eta", type=float, dest="target_eta", help="with --adaptive: stop when eta <= E")
     r.add_argument("--max-time", type=float, dest="max_time", help="with --adaptive: wall-time budget [s]")
     r.add_argument("--max-levels", type=int, dest="max_levels", help="with --adaptive: at most L levels (default 30)")
-    r.add_argument("--out", help="output directory (default results/runs/SCENE-DISC-pP)")
+    # without any of --max-ndof / --target-eta / --max-time an adaptive CLI run gets DEFAULT_MAX_NDOF (said in its header)
+    r.add_argument("--out", help="output directory: new, empty or a previous run directory, which is replaced "
+                                 "(default results/runs/SCENE-DISC-pP[-adaptive])")
     r.add_argument("--no-vtk", action="store_true", help="skip the .vtu output")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    r.add_argument("--test", action="store_true", help="short run with the scene's TEST_OPTIONS")
+    r.add_argument("--test", action="store_true",
+                   help="short run with the scene's TEST_OPTIONS (options given explicitly override them)")
     r.add_argument("-v", "--verbose", action="store_true", help="log every Newton iteration")
     r.add_argument("-q", "--quiet", action="store_true", help="print only the final table")
 
@@ -107,7 +116,7 @@ def _build_parser():
 
     d = sub.add_parser("demo", help="the default scene: test1, P1 and P2, 4 uniform levels")
     d.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
-    d.add_argument("--levels", type=int, default=4)
+    d.add_argument("--levels", type=int, default=4, help="uniform mesh levels per degree (default 4)")
     return p
 
 
@@ -149,19 +158,76 @@ def _check_solver_options(args, newton: str) -> None:
         raise _UsageError(f"option(s) {', '.join(used)} need --newton adaptive (got --newton {newton})")
 
 
+#: CLI flag of a RunOptions field whose name differs from --field-name
+_FLAGS = {"ilu_drop_tol": "--ilu-drop", "condense": "--no-condense", "estimate": "--estimate",
+          "adaptive": "--adaptive"}
+
+#: DOF budget of an adaptive CLI run that gives no stopping criterion (its header says so)
+DEFAULT_MAX_NDOF = 100_000
+
+
+def _flag(name: str) -> str:
+    return _FLAGS.get(name, "--" + name.replace("_", "-"))
+
+
+def _cli_message(exc: Exception) -> str:
+    """A RunOptions error in the words of the command line (``option max_ndof`` -> ``option --max-ndof``)."""
+    import re
+
+    msg = re.sub(r"\boption (\w+)", lambda m: "option " + _flag(m.group(1)), str(exc))
+    return msg.replace("(or None)", "(or omitted)")
+
+
+def _parse_flux_order(value, order: int):
+    """--flux-order: 'p', 'p+1' or a number."""
+    if value is None:
+        return None
+    v = str(value).replace(" ", "").lower()
+    if v == "p":
+        return order
+    if v == "p+1":
+        return order + 1
+    try:
+        return int(v)
+    except ValueError:
+        raise _UsageError(f"option --flux-order must be p, p+1 or an integer, got {value!r}") from None
+
+
+def _check_run_flags(args, options) -> None:
+    """Flags that the chosen run would silently ignore: usage errors."""
+    if args.verbose and args.quiet:
+        raise _UsageError("options -v/--verbose and -q/--quiet exclude each other")
+    if args.adaptive and args.levels is not None:
+        raise _UsageError("option --levels sets the number of uniform levels; with --adaptive use --max-levels "
+                          "(or a budget: --max-ndof, --target-eta, --max-time)")
+    if args.no_condense and options.disc != "hho":
+        raise _UsageError(f"option --no-condense needs --disc hho (got --disc {options.disc})")
+    if args.decouple and options.disc != "fem":
+        raise _UsageError(f"option --decouple needs --disc fem (got --disc {options.disc})")
+    if args.gamma_balance is not None and options.newton_stop != "balanced":
+        raise _UsageError("option --gamma-balance needs --newton-stop balanced")
+
+
 def _cmd_run(args, argv) -> int:
-    from .results import write_run
+    from dataclasses import replace
+
+    from .problems import TwoMembraneProblem
+    from .results import check_output_dir, write_run
     from .runner import RunOptions, run_scene
     from .scenes import load_scene
 
+    if args.out is not None:
+        check_output_dir(args.out, "--out")  # before loading anything: a bad path fails in a second
     scene = load_scene(args.scene)
+    if args.decouple and not isinstance(scene.problem, TwoMembraneProblem):
+        raise _UsageError(f"option --decouple needs a two-membrane scene ({scene.name} is a "
+                          f"{type(scene.problem).__name__})")
     given = dict(order=args.order, levels=args.levels, disc=args.disc, cfun=args.cfun, start=args.start,
                  tol=args.tol, maxit=args.maxit, solver=args.solver,
                  condense=False if args.no_condense else None, estimate=True if args.estimate else None,
                  newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu,
                  decouple=True if args.decouple else None, newton_stop=args.newton_stop,
-                 gamma_balance=args.gamma_balance, ilu_drop_tol=args.ilu_drop_tol, ilu_fill=args.ilu_fill,
-                 flux_order=args.flux_order)
+                 gamma_balance=args.gamma_balance, ilu_drop_tol=args.ilu_drop_tol, ilu_fill=args.ilu_fill)
     adaptive_opts = dict(marking=args.marking, theta=args.theta, max_ndof=args.max_ndof, target_eta=args.target_eta,
                          max_time=args.max_time, max_levels=args.max_levels)
     if not args.adaptive and any(v is not None for v in adaptive_opts.values()):
@@ -170,18 +236,30 @@ def _cmd_run(args, argv) -> int:
     given.update(adaptive=True if args.adaptive else None, **adaptive_opts)
     if args.test:
         given = {**scene.test_options, **{k: v for k, v in given.items() if v is not None}}
-    options = RunOptions.for_scene(scene, **given)
-    _check_solver_options(args, options.newton)
-    if args.flux_order is not None and not (options.estimate or options.adaptive or options.newton == "adaptive"):
-        raise _UsageError("option --flux-order needs --estimate, --adaptive or --newton adaptive (nothing is estimated)")
-    out = Path(args.out or f"results/runs/{scene.name}-{options.disc}-p{options.order}")
-    if options.adaptive and not args.out:
+    try:
+        options = RunOptions.for_scene(scene, **given)
+        _check_run_flags(args, options)
+        _check_solver_options(args, options.newton)
+        if args.flux_order is not None:
+            if not (options.estimate or options.adaptive or options.newton == "adaptive"):
+                raise _UsageError("option --flux-order needs --estimate, --adaptive or --newton adaptive "
+                                  "(nothing is estimated)")
+            options = replace(options, flux_order=_parse_flux_order(args.flux_order, options.order))
+        budget = ""
+        if options.adaptive and options.max_ndof is None and options.target_eta is None and options.max_time is None:
+            options = replace(options, max_ndof=DEFAULT_MAX_NDOF)
+            budget = f", default budget --max-ndof {DEFAULT_MAX_NDOF}"
+    except ValueError as exc:
+        raise _UsageError(_cli_message(exc)) from None
+    out = Path(args.out if args.out is not None else f"results/runs/{scene.name}-{options.disc}-p{options.order}")
+    if options.adaptive and args.out is None:
         out = out.with_name(out.name + "-adaptive")
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a directory")
+    check_output_dir(out, "--out")
     say = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
-    say(f"ngcontact: scene {scene.name} ({scene.description}) | {options.disc} P{options.order}, "
-        + (f"adaptive ({options.marking}, theta={options.theta:g}), " if options.adaptive else f"{options.levels} levels, ")
+    desc = scene.description.rstrip(".")
+    say(f"ngcontact: scene {scene.name} ({desc}) | {options.disc} P{options.order}, "
+        + (f"adaptive ({options.marking}, theta={options.theta:g}{budget}), " if options.adaptive
+           else f"{options.levels} levels, ")
         + f"Newton-{options.cfun}, {options.start} start")
     newton_cb = None
     if args.verbose:
@@ -192,7 +270,7 @@ def _cmd_run(args, argv) -> int:
     result = run_scene(scene, options, progress=say, newton_callback=newton_cb)
     write_run(result, out, vtk=not args.no_vtk, plots=not args.no_plots, argv=["python -m ngcontact", *argv])
     print(format_table(result.rows, f"\n{scene.name}: {options.disc} P{options.order} ({time.perf_counter() - t0:.1f} s)"))
-    if result.stop_reason:
+    if result.stop_reason and args.quiet:  # otherwise the loop's progress line said it
         print(f"adaptive loop stopped: {result.stop_reason}")
     print(f"outputs: {out}/ (history.csv, newton.csv, summary.json"
           + ("" if args.no_plots else ", *.png") + ("" if args.no_vtk else ", solution.vtu") + ")")
@@ -203,27 +281,36 @@ def _cmd_run(args, argv) -> int:
     return 0
 
 
-def _cmd_demo(args) -> int:
+def _cmd_demo(args, argv) -> int:
     from .plotting import plot_compare
-    from .results import write_run
+    from .results import check_output_dir, write_run
     from .runner import RunOptions, run_scene
     from .scenes import load_scene
 
     scene = load_scene("test1")
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {args.out!r} exists and is not a directory")
+    for p in (1, 2):
+        check_output_dir(out / f"p{p}", "--out")
+    try:
+        opts_p = {p: RunOptions.for_scene(scene, order=p, levels=args.levels) for p in (1, 2)}
+    except ValueError as exc:
+        raise _UsageError(_cli_message(exc)) from None
     dirs = []
     status = 0
     for p in (1, 2):
-        opts = RunOptions.for_scene(scene, order=p, levels=args.levels)
-        print(f"== demo: {scene.name} ({scene.description}), FEM P{p}, {args.levels} uniform levels", flush=True)
+        opts = opts_p[p]
+        print(f"== demo: {scene.name} ({scene.description.rstrip('.')}), FEM P{p}, {args.levels} uniform levels",
+              flush=True)
         res = run_scene(scene, opts, progress=lambda m: print(m, flush=True))
-        d = write_run(res, out / f"p{p}", argv=["python -m ngcontact demo"])
+        d = write_run(res, out / f"p{p}", argv=["python -m ngcontact", *argv])
         dirs.append(d)
         print(format_table(res.rows, f"\ntest1 FEM P{p}"))
         print()
         status = status or (0 if res.converged else 3)
     png = plot_compare(dirs, out / "convergence.png", title="test1 [CAMWA21]: FEM P1, P2")
-    print(f"outputs: {out}/p1, {out}/p2 (history.csv, summary.json, PNGs, solution.vtu); overview {png}")
+    print(f"outputs: {out}/p1, {out}/p2 (history.csv, newton.csv, summary.json, PNGs, solution.vtu); overview {png}")
     return status
 
 
@@ -241,9 +328,31 @@ def _apply_thread_setting() -> None:
     SetNumThreads(int(value))
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that partial outputs are removed on the way out."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated()
+
+
 def main(argv=None) -> int:
+    import signal
+
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = _build_parser()
+    try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread (embedded use): leave signals alone
+        previous = None
+    try:
+        return _main(argv, parser)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv, parser) -> int:
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     try:
@@ -266,6 +375,7 @@ def main(argv=None) -> int:
             for d in args.dirs:
                 if not (Path(d) / "history.csv").is_file():
                     raise ValueError(f"{d} is not a run directory (no history.csv)")
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
             print(plot_compare(args.dirs, args.out, args.title))
             return 0
         if args.cmd == "table":
@@ -276,6 +386,7 @@ def main(argv=None) -> int:
                     raise ValueError(f"{d} is not a run directory (no history.csv)")
             text = markdown_table(args.dirs)
             if args.out:
+                Path(args.out).parent.mkdir(parents=True, exist_ok=True)
                 Path(args.out).write_text(text + "\n")
                 print(args.out)
             else:
@@ -283,7 +394,7 @@ def main(argv=None) -> int:
             return 0
         _apply_thread_setting()
         if args.cmd == "demo":
-            return _cmd_demo(args)
+            return _cmd_demo(args, argv)
         return _cmd_run(args, argv)
     except _UsageError as exc:
         print(f"ngcontact: error: {exc}", file=sys.stderr)
@@ -291,6 +402,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("ngcontact: interrupted", file=sys.stderr)
         return 130
+    except _Terminated:
+        print("ngcontact: terminated", file=sys.stderr)
+        return 143
     except (ValueError, FileNotFoundError, ArithmeticError) as exc:
         if debug:
             traceback.print_exc()

@@ -138,8 +138,8 @@ class InexactOptions:
                 bad(name, "a number in (0, 1)")
         for name in ("gamma_alg", "gamma_lin"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and 0 < v and math.isfinite(v)):
-                bad(name, "a positive number")
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 < v < 1):
+                bad(name, "a number in (0, 1) ([JSC20]: gamma < 1)")
         if isinstance(self.ilu_drop_tol, bool) or not (isinstance(self.ilu_drop_tol, (int, float))
                                                        and 0 <= self.ilu_drop_tol < 1):
             bad("ilu_drop_tol", "a number in [0, 1)")

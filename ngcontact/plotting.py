@@ -15,7 +15,26 @@ import numpy as np  # noqa: E402
 
 from .results import read_history  # noqa: E402
 
-__all__ = ["plot_run", "plot_compare", "plot_solution", "plot_eta_map", "plot_mesh"]
+__all__ = ["plot_run", "plot_compare", "plot_solution", "plot_eta_map", "plot_mesh", "slope_label", "tidy_log_axes"]
+
+
+def slope_label(p: int) -> str:
+    """Legend of the optimal slope ndof^(-p/2), as a reduced fraction (ndof^-1 for p = 2)."""
+    from fractions import Fraction
+
+    f = Fraction(p, 2)
+    return f"ndof$^{{-{f.numerator}}}$" if f.denominator == 1 else f"ndof$^{{-{f.numerator}/{f.denominator}}}$"
+
+
+def tidy_log_axes(fig) -> None:
+    """No labels on the minor ticks of log axes (they overlap when an axis spans less than a decade)."""
+    from matplotlib.ticker import NullFormatter
+
+    for ax in fig.axes:
+        if ax.get_xscale() == "log":
+            ax.xaxis.set_minor_formatter(NullFormatter())
+        if ax.get_yscale() == "log":
+            ax.yaxis.set_minor_formatter(NullFormatter())
 
 
 def _slope_line(ax, n, e, slope, label):
@@ -42,12 +61,13 @@ def plot_run(run_dir, order: int) -> list:
                 ax.loglog(xs, [r[c] for r in rows], "o-" if c == "err_energy" else "s--", label=f"P{order} {lab}")
             if fname == "convergence.png":
                 e = np.array([r[curves[0][0]] for r in rows])
-                _slope_line(ax, n, e, -order / 2, f"ndof$^{{-{order}/2}}$")
+                _slope_line(ax, n, e, -order / 2, slope_label(order))
             ax.set_xlabel(xlabel)
             ax.set_ylabel("energy error / estimate")
             ax.grid(True, which="both", alpha=0.3)
             ax.legend()
             fig.tight_layout()
+            tidy_log_axes(fig)
             fig.savefig(run_dir / fname, dpi=120)
             plt.close(fig)
             written.append(fname)
@@ -65,6 +85,7 @@ def plot_run(run_dir, order: int) -> list:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
         fig.tight_layout()
+        tidy_log_axes(fig)
         fig.savefig(run_dir / "newton.png", dpi=120)
         plt.close(fig)
         written.append("newton.png")
@@ -86,7 +107,7 @@ def plot_compare(run_dirs, out_file, title: str = "") -> Path:
         t = np.array([r["time_cum_s"] for r in rows])
         (line,) = ax1.loglog(n, e, "o-", label=lab)
         ref = e[-1] * (n / n[-1]) ** (-p / 2)
-        ax1.loglog(n, ref, "--", color=line.get_color(), lw=0.8, label=f"ndof$^{{-{p}/2}}$")
+        ax1.loglog(n, ref, "--", color=line.get_color(), lw=0.8, label=slope_label(p))
         ax2.loglog(t, e, "o-", label=lab)
     ax1.set_xlabel("ndof")
     ax2.set_xlabel("cumulative run time [s]")
@@ -98,6 +119,7 @@ def plot_compare(run_dirs, out_file, title: str = "") -> Path:
         fig.suptitle(title)
     fig.tight_layout()
     out_file = Path(out_file)
+    tidy_log_axes(fig)
     fig.savefig(out_file, dpi=120)
     plt.close(fig)
     return out_file
@@ -123,6 +145,7 @@ def plot_solution(disc, x, y, out_file) -> Path:
     axs[0].legend(loc="upper right", fontsize=7)
     fig.tight_layout()
     out_file = Path(out_file)
+    tidy_log_axes(fig)
     fig.savefig(out_file, dpi=110)
     plt.close(fig)
     return out_file
@@ -145,6 +168,7 @@ def plot_eta_map(estimate, out_file, title: str = "") -> Path:
     ax.set_aspect("equal")
     ax.set_title(title or rf"estimator map, $\eta$ = {estimate.eta:.3e}")
     fig.tight_layout()
+    tidy_log_axes(fig)
     fig.savefig(out_file, dpi=120)
     plt.close(fig)
     return Path(out_file)
@@ -165,6 +189,7 @@ def plot_mesh(disc, x, y, out_file, title: str = "") -> Path:
     ax.set_title(title or f"P{disc.order}: {mesh.ne} triangles, ndof {disc.ndof}")
     fig.tight_layout()
     out_file = Path(out_file)
+    tidy_log_axes(fig)
     fig.savefig(out_file, dpi=130)
     plt.close(fig)
     return out_file

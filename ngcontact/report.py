@@ -131,6 +131,8 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .plotting import slope_label, tidy_log_axes
+
     runs_dir, out_md, fig_dir = Path(runs_dir), Path(out_md), Path(fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
     runs = {}
@@ -180,7 +182,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
             if m == "adaptive":  # optimal slope through the adaptive run's last point
                 ref = _col(rows, "eta")
                 axs[0].loglog(n, ref[-1] * (n / n[-1]) ** (-p / 2), ":", color=colors[p], lw=1.2,
-                              label=f"ndof$^{{-{p}/2}}$")
+                              label=slope_label(p))
         axs[0].set_xlabel("ndof")
         axs[1].set_xlabel("cumulative run time [s]")
         for ax in axs:
@@ -190,6 +192,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
         fig.suptitle(f"{scene}: uniform (squares) vs adaptive (dots); error solid, estimator dashed")
         fig.tight_layout()
         png = fig_dir / f"{scene}_convergence.png"
+        tidy_log_axes(fig)
         fig.savefig(png, dpi=110)
         plt.close(fig)
         md += [f"![{scene}: error and estimator vs ndof and time]({rel(png)})", ""]
@@ -242,6 +245,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
             ax.set_title(f"{scene}: effectivity per level")
             fig.tight_layout()
             png = fig_dir / f"{scene}_ieff.png"
+            tidy_log_axes(fig)
             fig.savefig(png, dpi=110)
             plt.close(fig)
             if any(s == scene for s, _, _ in ieff_rows):

@@ -22,8 +22,10 @@ rate_energy         log(e_{j-1}/e_j) / log(h_{j-1}/h_j)              [exact only
 err_max_nodal       max over nodes |u_a(x_l) - u_ah(x_l)|           [exact only]
 err_jump            dg: jump seminorm (sum_F eta/h_F ||[u_ah - u_a]||_F^2)^(1/2) [exact]
 newton_its          semismooth Newton iterations on this level
-newton_converged    1 if ||Phi||/||F|| <= tol was reached, else 0
-res_final           final ||Phi||/||F||
+newton_converged    1 if the Newton mode's stopping criterion was met, else 0: ||Phi||/||F|| <= tol
+                    (exact, exact-gmres, inexact) or eta_lin <= gamma_lin eta_disc (adaptive)
+res_final           final ||Phi||/||F|| (adaptive: it contains the algebraic residual of the accepted
+                    GMRES iterate and can be O(1) when the estimators say the error is discretization-dominated)
 newton_balanced     --newton-stop balanced: 1 if the level stopped on eps_lin <= gamma_balance eps_disc
 eps_lin_final, eps_disc_final
                     --newton-stop balanced: linearization defect and discretization proxy of
@@ -96,6 +98,8 @@ import tempfile
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+
 __all__ = ["write_run", "read_history", "markdown_table", "HISTORY_COLUMNS"]
 
 HISTORY_COLUMNS = [
@@ -110,6 +114,17 @@ HISTORY_COLUMNS = [
     "eta_nonc2", "eta_nonc3", "eta_quad", "eta_bc", "eps_w", "eta_nonc2_seed", "time_estimate_s",
     "time_total_s", "time_cum_s",
 ]
+
+
+def _json_value(v):
+    """A history value for JSON: numbers stay numbers (NaN / inf: null)."""
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    return v
 
 
 def _fmt(v):
@@ -173,17 +188,66 @@ def versions() -> dict:
             "python": platform.python_version()}
 
 
+def check_output_dir(out_dir, field: str = "out") -> Path:
+    """Check, before any work, that a run directory can be written at ``out_dir``; returns it absolute.
+
+    A run directory replaces ``out_dir`` as a whole, so ``out_dir`` must be absent, empty, or a
+    previous run directory (it has a ``summary.json``): any other existing directory is refused
+    rather than deleted.  Its nearest existing ancestor must be a writable directory.  Errors
+    (ValueError) name ``field`` and the path.
+    """
+    if out_dir is None or str(out_dir).strip() == "":
+        raise ValueError(f"{field} must be a directory path, got {str(out_dir)!r}")
+    given = str(out_dir)
+    out = Path(os.path.abspath(os.path.expanduser(given)))
+    if out.parent == out:
+        raise ValueError(f"{field} {given!r} is a file-system root, not a run directory")
+    cwd = Path.cwd().resolve()
+    if out.exists() and (out.resolve() == cwd or out.resolve() in cwd.parents):
+        raise ValueError(f"{field} {given!r} is the working directory or contains it (a run directory is replaced "
+                         f"as a whole): choose a subdirectory, e.g. {field} out/run")
+    if out.exists():
+        if not out.is_dir():
+            raise ValueError(f"{field} {given!r} exists and is not a directory")
+        if any(out.iterdir()) and not (out / "summary.json").is_file():
+            raise ValueError(f"{field} {given!r} is a non-empty directory that is not an ngcontact run directory "
+                             f"(no summary.json); refusing to replace it: choose a new or empty directory")
+    anc = out.parent
+    while not anc.exists():
+        anc = anc.parent
+    if not anc.is_dir():
+        raise ValueError(f"{field} {given!r} cannot be created: {anc} is not a directory")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise ValueError(f"{field} {given!r} cannot be created: {anc} is not writable")
+    try:  # the staging directory of write_run is created there: try it (access() says yes to root anywhere)
+        os.rmdir(tempfile.mkdtemp(prefix=".ngcontact-probe-", dir=out.parent if out.parent.exists() else anc))
+    except OSError as exc:
+        raise ValueError(f"{field} {given!r} cannot be created: {exc.strerror} ({anc})") from None
+    return out
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) -> Path:
-    """Write all outputs of a :class:`~ngcontact.runner.RunResult` atomically into ``out_dir``."""
-    out_dir = Path(out_dir)
+    """Write all outputs of a :class:`~ngcontact.runner.RunResult` atomically into ``out_dir``.
+
+    ``out_dir`` must pass :func:`check_output_dir` (absent, empty or a previous run directory, which is
+    replaced).  The files are written into a hidden sibling directory that is renamed into place once
+    complete; on any error or signal it is removed."""
+    out_dir = check_output_dir(out_dir, "out_dir")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{out_dir.name}-", dir=out_dir.parent))
+    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it 0700; a run directory follows the umask
     try:
         _write_csv(tmp / "history.csv", result.rows, HISTORY_COLUMNS)
         _write_csv(tmp / "newton.csv", result.iterations)
         summary = {
             "scene": result.scene.name,
-            "scene_file": str(result.scene.path),
+            "scene_file": _display_path(result.scene.path),
             "problem": type(result.scene.problem).__name__,
             "domain": result.scene.problem.domain.name,
             "description": result.scene.description,
@@ -191,7 +255,7 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
             "converged": result.converged,
             "failures": result.failures,
             **({"stop_reason": result.stop_reason} if getattr(result, "stop_reason", None) else {}),
-            "final": {k: _fmt(v) for k, v in result.rows[-1].items()} if result.rows else {},
+            "final": {k: _json_value(v) for k, v in result.rows[-1].items()} if result.rows else {},
             "versions": versions(),
             "git_revision": git_revision(),
             "command": " ".join(argv) if argv else None,
@@ -226,6 +290,18 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out_dir
+
+
+def _display_path(path) -> str:
+    """``path`` relative to the working directory when it lies below it (no absolute paths of the
+    machine that ran it in committed summaries), else as given."""
+    if path is None:
+        return None
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(p)
 
 
 def _write_vtk(result, basename: Path):

@@ -93,8 +93,8 @@ class RunOptions:
             bad("newton", f"'exact' for disc {self.disc!r} (inexact Newton is implemented for fem)")
         for name in ("gamma_alg", "gamma_lin"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
-                bad(name, "a positive number")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 1:
+                bad(name, "a number in (0, 1) ([JSC20]: gamma < 1)")
         if isinstance(self.nu, bool) or not isinstance(self.nu, int) or self.nu < 1:
             bad("nu", "a positive integer")
         v = self.ilu_drop_tol

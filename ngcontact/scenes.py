@@ -54,8 +54,12 @@ def load_scene(spec: str) -> Scene:
     """Load a scene by name (``cases/NAME.py``) or by path to a Python file."""
     path = Path(spec)
     if path.suffix == ".py" or os.sep in spec:
+        if path.is_dir():
+            raise SceneError(f"scene {spec!r} is a directory, not a scene .py file")
         if not path.is_file():
             raise SceneError(f"scene file not found: {spec}")
+        if path.suffix != ".py":
+            raise SceneError(f"scene file {spec!r} must be a Python file (.py), got suffix {path.suffix!r}")
     else:
         path = cases_dir() / f"{spec}.py"
         if not path.is_file():
@@ -85,6 +89,8 @@ def load_scene(spec: str) -> Scene:
             f"scene {path.name} must define `problem` as a TwoMembraneProblem or ObstacleProblem"
             f" (got {type(problem).__name__})"
         )
+    guess = getattr(module, "INITIAL_GUESS", None)
+    _check_initial_guess(path.name, guess, 2 if isinstance(problem, TwoMembraneProblem) else 1)
     doc = (module.__doc__ or "").strip()
     return Scene(
         name=path.stem,
@@ -92,6 +98,22 @@ def load_scene(spec: str) -> Scene:
         problem=problem,
         description=doc.splitlines()[0] if doc else "",
         defaults=dict(getattr(module, "DEFAULTS", {})),
-        initial_guess=getattr(module, "INITIAL_GUESS", None),
+        initial_guess=guess,
         test_options=dict(getattr(module, "TEST_OPTIONS", {})),
     )
+
+
+def _check_initial_guess(scene_file: str, guess, nfields: int) -> None:
+    """INITIAL_GUESS: None, or one entry per field (number, CoefficientFunction or None)."""
+    if guess is None:
+        return
+    from ngsolve import CoefficientFunction
+
+    if not isinstance(guess, (tuple, list)) or len(guess) != nfields:
+        raise SceneError(f"scene {scene_file}: INITIAL_GUESS must be a tuple of {nfields} entries (one per field: "
+                         f"{'u1, u2' if nfields == 2 else 'u'}), got {guess!r}")
+    for i, v in enumerate(guess):
+        if v is None or isinstance(v, CoefficientFunction) or (isinstance(v, (int, float)) and not isinstance(v, bool)):
+            continue
+        raise SceneError(f"scene {scene_file}: INITIAL_GUESS[{i}] must be a number, a CoefficientFunction or None, "
+                         f"got {v!r}")

@@ -165,8 +165,8 @@ def test_run_options_validate_adaptive_fields(kw, field):
 @pytest.mark.parametrize("args, words", [(["--adaptive", "--theta", "1.5"], "theta"),
                                          (["--theta", "0.3"], "--theta need --adaptive"),
                                          (["--max-ndof", "100"], "--max-ndof need --adaptive"),
-                                         (["--adaptive", "--max-ndof", "-3"], "max_ndof"),
-                                         (["--adaptive", "--disc", "hho"], "option adaptive"),
+                                         (["--adaptive", "--max-ndof", "-3"], "option --max-ndof"),
+                                         (["--adaptive", "--disc", "hho"], "option --adaptive"),
                                          (["--adaptive", "--marking", "bulk"], "--marking")])
 def test_cli_rejects_bad_adaptive_options(tmp_path, capsys, args, words):
     out = tmp_path / "never"

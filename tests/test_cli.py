@@ -53,16 +53,25 @@ def test_user_scene_without_exact_solution(tmp_path):
 @pytest.mark.parametrize("args,msg", [
     (["run", "no_such_scene"], "unknown scene 'no_such_scene'"),
     (["run", "missing/file.py"], "scene file not found"),
-    (["run", "test1", "--order", "7"], "option order must be one of"),
-    (["run", "test1", "--levels", "0"], "option levels must be"),
+    (["run", "test1", "--order", "7"], "option --order must be one of"),
+    (["run", "test1", "--levels", "0"], "option --levels must be"),
     (["run", "test1", "--cfun", "max"], "invalid choice"),
     (["run", "test1", "--tol", "abc"], "invalid float value"),
-    (["run", "test1", "--newton-stop", "balanced", "--gamma-balance", "5"], "option gamma_balance must be"),
+    (["run", "test1", "--newton-stop", "balanced", "--gamma-balance", "5"], "option --gamma-balance must be"),
     (["run", "test1", "--ilu-drop", "1e-6"], "--ilu-drop need --newton exact-gmres, inexact or adaptive"),
     (["run", "test1", "--newton", "inexact", "--nu", "5"], "--nu need --newton adaptive"),
-    (["run", "test1", "--newton", "inexact", "--ilu-fill", "0.5"], "option ilu_fill must be a number >= 1"),
+    (["run", "test1", "--newton", "inexact", "--ilu-fill", "0.5"], "option --ilu-fill must be a number >= 1"),
     (["run", "test1", "--flux-order", "2"], "--flux-order needs --estimate, --adaptive or --newton adaptive"),
-    (["run", "test1", "--estimate", "--order", "2", "--flux-order", "4"], "option flux_order must be None, 2 or 3"),
+    (["run", "test1", "--estimate", "--order", "2", "--flux-order", "4"], "option --flux-order must be None, 2 or 3"),
+    (["run", "test1", "--estimate", "--flux-order", "q"], "option --flux-order must be p, p+1 or an integer, got 'q'"),
+    (["run", "test1", "--adaptive", "--levels", "3"], "option --levels sets the number of uniform levels"),
+    (["run", "test1", "--adaptive", "--max-ndof", "-5"], "option --max-ndof must be a positive integer (or omitted)"),
+    (["run", "test1", "-v", "-q"], "-v/--verbose and -q/--quiet exclude each other"),
+    (["run", "test1", "--no-condense"], "--no-condense needs --disc hho"),
+    (["run", "test1", "--disc", "hho", "--decouple"], "--decouple needs --disc fem"),
+    (["run", "ex9_obstacle", "--decouple"], "--decouple needs a two-membrane scene"),
+    (["run", "test1", "--gamma-balance", "0.1"], "--gamma-balance needs --newton-stop balanced"),
+    (["run", "test1", "--newton", "adaptive", "--gamma-alg", "5"], "option --gamma-alg must be a number in (0, 1)"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_input_gives_one_line_and_exit_code_2(args, msg, capsys, tmp_path):
@@ -158,3 +167,115 @@ def test_flux_order_option_reaches_the_estimator(tmp_path):
     base = list(csv.DictReader(open(ref / "history.csv")))
     assert [r["err_energy"] for r in rows] == [r["err_energy"] for r in base]  # same solutions
     assert all(abs(float(a["eta"]) / float(b["eta"]) - 1) > 1e-6 for a, b in zip(rows, base))  # another flux
+
+
+def test_out_never_replaces_a_foreign_directory(tmp_path, capsys):
+    """--out naming a non-empty directory that is not a run directory is refused before any work, its
+    files untouched; a previous run directory is replaced."""
+    mine = tmp_path / "thesis"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("precious")
+    assert main(["run", "test1", "--levels", "1", "--out", str(mine), "-q", "--no-vtk", "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "not an ngcontact run directory" in err and len(err.strip().splitlines()) == 1
+    assert (mine / "thesis.tex").read_text() == "precious"
+    run = tmp_path / "run"
+    for _ in range(2):  # the second run replaces the first one's directory
+        assert main(["run", "test1", "--levels", "1", "--out", str(run), "-q", "--no-vtk", "--no-plots"]) == 0
+    assert (run / "summary.json").is_file() and not list(tmp_path.glob(".tmp-*"))
+
+
+@pytest.mark.parametrize("make_out,msg", [
+    (lambda t: "", "--out must be a directory path, got ''"),
+    (lambda t: str(t / "afile" / "sub"), "is not a directory"),
+    (lambda t: str(t / "afile"), "exists and is not a directory"),
+])
+def test_bad_out_is_found_before_solving(make_out, msg, tmp_path, capsys):
+    import time
+
+    (tmp_path / "afile").write_text("x")
+    t0 = time.perf_counter()
+    assert main(["run", "test1", "--levels", "6", "--out", make_out(tmp_path)]) == 2
+    assert time.perf_counter() - t0 < 20  # level 6 of test 1 is not solved first
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("ngcontact: error: --out") and msg in err and len(err.splitlines()) == 1
+
+
+def test_run_directory_follows_the_umask_and_summary_numbers_are_numbers(tmp_path):
+    import os
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        out = tmp_path / "perm"
+        assert main(["run", "test1", "--levels", "1", "--out", str(out), "-q", "--no-vtk", "--no-plots"]) == 0
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o755
+    final = json.loads((out / "summary.json").read_text())["final"]
+    assert isinstance(final["h"], float) and isinstance(final["ndof"], int) and isinstance(final["err_energy"], float)
+
+
+def test_flux_order_accepts_p_and_p_plus_1(tmp_path):
+    out = tmp_path / "fo"
+    assert main(["run", "test1", "--levels", "1", "--estimate", "--flux-order", "p+1", "--out", str(out),
+                 "-q", "--no-vtk", "--no-plots"]) == 0
+    assert json.loads((out / "summary.json").read_text())["options"]["flux_order"] == 2
+
+
+def test_adaptive_run_without_a_budget_gets_the_default_one(tmp_path, capsys):
+    from ngcontact.cli import DEFAULT_MAX_NDOF
+
+    out = tmp_path / "ad"
+    assert main(["run", "test1", "--adaptive", "--max-levels", "2", "--out", str(out), "--no-vtk",
+                 "--no-plots"]) == 0
+    assert f"default budget --max-ndof {DEFAULT_MAX_NDOF}" in capsys.readouterr().out
+    assert json.loads((out / "summary.json").read_text())["options"]["max_ndof"] == DEFAULT_MAX_NDOF
+
+
+@pytest.mark.parametrize("name,text,msg", [
+    ("data.csv", "a,b\n", "must be a Python file (.py)"),
+    ("short_guess.py", "from ngcontact import *\nproblem = TwoMembraneProblem(CrissCrossSquare(), f1=0, f2=0)\n"
+                       "INITIAL_GUESS = (1.0,)\n", "INITIAL_GUESS must be a tuple of 2 entries"),
+    ("text_guess.py", "from ngcontact import *\nproblem = TwoMembraneProblem(CrissCrossSquare(), f1=0, f2=0)\n"
+                      "INITIAL_GUESS = ('a', 0.0)\n", "INITIAL_GUESS[0] must be a number"),
+])
+def test_scene_file_problems_are_one_line(name, text, msg, tmp_path, capsys):
+    f = tmp_path / name
+    f.write_text(text)
+    assert main(["run", str(f), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert msg in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert main(["run", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "is a directory, not a scene .py file" in capsys.readouterr().err
+
+
+def test_sigterm_leaves_no_partial_outputs(tmp_path):
+    """SIGTERM during a run: exit code 143, no output or staging directory left."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "term"
+    proc = subprocess.Popen([sys.executable, "-m", "ngcontact", "run", "test1", "--order", "2", "--levels", "7",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()  # the header: the run has started
+    assert line.startswith("ngcontact: scene test1")
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert "terminated" in err
+    assert not out.exists() and not list(tmp_path.glob(".tmp-*"))
+
+
+def test_out_cannot_be_the_working_directory(tmp_path, monkeypatch, capsys):
+    """Replacing the working directory (or a directory containing it) would pull it from under the shell."""
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    for out in (".", str(tmp_path)):
+        assert main(["run", "test1", "--levels", "1", "--out", out]) == 2
+        assert "is the working directory or contains it" in capsys.readouterr().err
+    assert work.is_dir() and not list(work.iterdir())
