@@ -175,7 +175,7 @@ def _cli_message(exc: Exception) -> str:
     import re
 
     msg = re.sub(r"\boption (\w+)", lambda m: "option " + _flag(m.group(1)), str(exc))
-    return msg.replace("(or None)", "(or omitted)")
+    return msg.replace("(or None)", "(or omitted)").replace(", or None", "")
 
 
 def _parse_flux_order(value, order: int):
@@ -204,6 +204,9 @@ def _check_run_flags(args, options) -> None:
         raise _UsageError(f"option --no-condense needs --disc hho (got --disc {options.disc})")
     if args.decouple and options.disc != "fem":
         raise _UsageError(f"option --decouple needs --disc fem (got --disc {options.disc})")
+    if args.decouple and (options.newton != "exact" or options.adaptive):
+        raise _UsageError("option --decouple needs the direct Newton solves of uniform runs "
+                          "(--newton exact, no --adaptive)")
     if args.gamma_balance is not None and options.newton_stop != "balanced":
         raise _UsageError("option --gamma-balance needs --newton-stop balanced")
 

@@ -27,14 +27,18 @@ def slope_label(p: int) -> str:
 
 
 def tidy_log_axes(fig) -> None:
-    """No labels on the minor ticks of log axes (they overlap when an axis spans less than a decade)."""
+    """No labels on the minor ticks of log axes that show at least two labelled major ticks (matplotlib
+    labels minor ticks on axes spanning about a decade, where they overlap); an axis with fewer keeps
+    them, so that it is never left without numbers."""
     from matplotlib.ticker import NullFormatter
 
     for ax in fig.axes:
-        if ax.get_xscale() == "log":
-            ax.xaxis.set_minor_formatter(NullFormatter())
-        if ax.get_yscale() == "log":
-            ax.yaxis.set_minor_formatter(NullFormatter())
+        for axis, scale, lim in ((ax.xaxis, ax.get_xscale(), ax.get_xlim()), (ax.yaxis, ax.get_yscale(), ax.get_ylim())):
+            if scale != "log":
+                continue
+            lo, hi = min(lim), max(lim)
+            if sum(lo <= t <= hi for t in axis.get_majorticklocs()) >= 2:
+                axis.set_minor_formatter(NullFormatter())
 
 
 def _slope_line(ax, n, e, slope, label):

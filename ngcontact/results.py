@@ -100,7 +100,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_run", "read_history", "markdown_table", "HISTORY_COLUMNS"]
+__all__ = ["write_run", "check_output_dir", "read_history", "markdown_table", "HISTORY_COLUMNS"]
 
 HISTORY_COLUMNS = [
     "level", "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "err_energy", "rate_energy", "err_max_nodal",
@@ -188,6 +188,10 @@ def versions() -> dict:
             "python": platform.python_version()}
 
 
+#: what a run directory holds (write_run); anything else in it is the user's and blocks its replacement
+RUN_FILE_SUFFIXES = (".csv", ".json", ".png", ".vtu", ".pvd", ".vtk")
+
+
 def check_output_dir(out_dir, field: str = "out") -> Path:
     """Check, before any work, that a run directory can be written at ``out_dir``; returns it absolute.
 
@@ -203,15 +207,23 @@ def check_output_dir(out_dir, field: str = "out") -> Path:
     if out.parent == out:
         raise ValueError(f"{field} {given!r} is a file-system root, not a run directory")
     cwd = Path.cwd().resolve()
+    if os.path.islink(out) and not out.exists():
+        raise ValueError(f"{field} {given!r} is a broken symbolic link")
     if out.exists() and (out.resolve() == cwd or out.resolve() in cwd.parents):
         raise ValueError(f"{field} {given!r} is the working directory or contains it (a run directory is replaced "
                          f"as a whole): choose a subdirectory, e.g. {field} out/run")
     if out.exists():
         if not out.is_dir():
             raise ValueError(f"{field} {given!r} exists and is not a directory")
-        if any(out.iterdir()) and not (out / "summary.json").is_file():
+        entries = list(out.iterdir())
+        if entries and not (out / "summary.json").is_file():
             raise ValueError(f"{field} {given!r} is a non-empty directory that is not an ngcontact run directory "
                              f"(no summary.json); refusing to replace it: choose a new or empty directory")
+        foreign = [e.name for e in entries if e.is_dir() or e.suffix not in RUN_FILE_SUFFIXES]
+        if foreign:
+            raise ValueError(f"{field} {given!r} is a run directory that also holds {foreign[0]!r}"
+                             f"{f' (and {len(foreign) - 1} more)' if len(foreign) > 1 else ''}, which replacing "
+                             f"it would delete: move it away or choose another directory")
     anc = out.parent
     while not anc.exists():
         anc = anc.parent
@@ -237,11 +249,12 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
 
     ``out_dir`` must pass :func:`check_output_dir` (absent, empty or a previous run directory, which is
     replaced).  The files are written into a hidden sibling directory that is renamed into place once
-    complete; on any error or signal it is removed."""
+    complete; on any exception (and, through the CLI, on Ctrl-C or SIGTERM) it is removed."""
     out_dir = check_output_dir(out_dir, "out_dir")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{out_dir.name}-", dir=out_dir.parent))
     os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it 0700; a run directory follows the umask
+    old = None
     try:
         _write_csv(tmp / "history.csv", result.rows, HISTORY_COLUMNS)
         _write_csv(tmp / "newton.csv", result.iterations)
@@ -279,15 +292,19 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
                 plot_eta_map(result.estimate, tmp / "eta_map.png")
         if vtk and result.discretization is not None:
             _write_vtk(result, tmp / "solution")
-        if out_dir.exists():
+        if os.path.lexists(out_dir):
             old = out_dir.with_name(f".old-{out_dir.name}-{os.getpid()}")
             out_dir.rename(old)
-            tmp.rename(out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(out_dir)
+        tmp.rename(out_dir)
+        if old is not None:
+            if old.is_symlink():
+                old.unlink()
+            else:
+                shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and os.path.lexists(old) and not os.path.lexists(out_dir):
+            old.rename(out_dir)  # interrupted between the two renames: the previous run comes back
         raise
     return out_dir
 

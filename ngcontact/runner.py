@@ -86,7 +86,7 @@ class RunOptions:
             bad("estimate", f"False for disc {self.disc!r} (estimators exist for {sorted(ESTIMATED)})")
         if self.flux_order is not None and (isinstance(self.flux_order, bool) or not isinstance(self.flux_order, int)
                                             or self.flux_order not in (self.order, self.order + 1)):
-            bad("flux_order", f"None, {self.order} or {self.order + 1} (the order p or p + 1)")
+            bad("flux_order", f"{self.order} or {self.order + 1} (the order p or p + 1), or None")
         if self.newton not in NEWTON_MODES:
             bad("newton", f"one of {NEWTON_MODES}")
         if self.newton != "exact" and self.disc != "fem":

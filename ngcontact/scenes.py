@@ -104,16 +104,23 @@ def load_scene(spec: str) -> Scene:
 
 
 def _check_initial_guess(scene_file: str, guess, nfields: int) -> None:
-    """INITIAL_GUESS: None, or one entry per field (number, CoefficientFunction or None)."""
+    """INITIAL_GUESS: None, or at most one entry per field (number, CoefficientFunction or None; missing
+    trailing fields start at zero)."""
     if guess is None:
         return
+    import numbers
+
     from ngsolve import CoefficientFunction
 
-    if not isinstance(guess, (tuple, list)) or len(guess) != nfields:
-        raise SceneError(f"scene {scene_file}: INITIAL_GUESS must be a tuple of {nfields} entries (one per field: "
-                         f"{'u1, u2' if nfields == 2 else 'u'}), got {guess!r}")
-    for i, v in enumerate(guess):
-        if v is None or isinstance(v, CoefficientFunction) or (isinstance(v, (int, float)) and not isinstance(v, bool)):
+    try:
+        entries = list(guess)
+    except TypeError:
+        entries = None
+    if entries is None or isinstance(guess, (str, bytes)) or not 1 <= len(entries) <= nfields:
+        raise SceneError(f"scene {scene_file}: INITIAL_GUESS must be a tuple of at most {nfields} entries (one per "
+                         f"field: {'u1, u2' if nfields == 2 else 'u'}), got {guess!r}")
+    for i, v in enumerate(entries):
+        if v is None or isinstance(v, CoefficientFunction) or (isinstance(v, numbers.Real) and not isinstance(v, bool)):
             continue
         raise SceneError(f"scene {scene_file}: INITIAL_GUESS[{i}] must be a number, a CoefficientFunction or None, "
                          f"got {v!r}")

@@ -62,7 +62,8 @@ def test_user_scene_without_exact_solution(tmp_path):
     (["run", "test1", "--newton", "inexact", "--nu", "5"], "--nu need --newton adaptive"),
     (["run", "test1", "--newton", "inexact", "--ilu-fill", "0.5"], "option --ilu-fill must be a number >= 1"),
     (["run", "test1", "--flux-order", "2"], "--flux-order needs --estimate, --adaptive or --newton adaptive"),
-    (["run", "test1", "--estimate", "--order", "2", "--flux-order", "4"], "option --flux-order must be None, 2 or 3"),
+    (["run", "test1", "--estimate", "--order", "2", "--flux-order", "4"], "option --flux-order must be 2 or 3 (the order p or p + 1), got 4"),
+    (["run", "test1", "--decouple", "--adaptive"], "--decouple needs the direct Newton solves of uniform runs"),
     (["run", "test1", "--estimate", "--flux-order", "q"], "option --flux-order must be p, p+1 or an integer, got 'q'"),
     (["run", "test1", "--adaptive", "--levels", "3"], "option --levels sets the number of uniform levels"),
     (["run", "test1", "--adaptive", "--max-ndof", "-5"], "option --max-ndof must be a positive integer (or omitted)"),
@@ -183,6 +184,9 @@ def test_out_never_replaces_a_foreign_directory(tmp_path, capsys):
     for _ in range(2):  # the second run replaces the first one's directory
         assert main(["run", "test1", "--levels", "1", "--out", str(run), "-q", "--no-vtk", "--no-plots"]) == 0
     assert (run / "summary.json").is_file() and not list(tmp_path.glob(".tmp-*"))
+    (run / "notes.txt").write_text("mine")  # a run directory holding a user's file is not replaced either
+    assert main(["run", "test1", "--levels", "1", "--out", str(run), "-q", "--no-vtk", "--no-plots"]) == 2
+    assert "also holds 'notes.txt'" in capsys.readouterr().err and (run / "notes.txt").read_text() == "mine"
 
 
 @pytest.mark.parametrize("make_out,msg", [
@@ -235,8 +239,8 @@ def test_adaptive_run_without_a_budget_gets_the_default_one(tmp_path, capsys):
 
 @pytest.mark.parametrize("name,text,msg", [
     ("data.csv", "a,b\n", "must be a Python file (.py)"),
-    ("short_guess.py", "from ngcontact import *\nproblem = TwoMembraneProblem(CrissCrossSquare(), f1=0, f2=0)\n"
-                       "INITIAL_GUESS = (1.0,)\n", "INITIAL_GUESS must be a tuple of 2 entries"),
+    ("long_guess.py", "from ngcontact import *\nproblem = TwoMembraneProblem(CrissCrossSquare(), f1=0, f2=0)\n"
+                       "INITIAL_GUESS = (1.0, 0.0, 2.0)\n", "INITIAL_GUESS must be a tuple of at most 2 entries"),
     ("text_guess.py", "from ngcontact import *\nproblem = TwoMembraneProblem(CrissCrossSquare(), f1=0, f2=0)\n"
                       "INITIAL_GUESS = ('a', 0.0)\n", "INITIAL_GUESS[0] must be a number"),
 ])

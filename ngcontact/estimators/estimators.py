@@ -875,8 +875,8 @@ def _nonconformity(disc, x_sol, y_sol, gap, ggap, exact_bc: bool, dxq):
 
     Returns
     -------
-    (float, CoefficientFunction or None, CoefficientFunction or None)
-        eta_nonc,1, n and grad n.
+    (float, CoefficientFunction or None, CoefficientFunction or None, ndarray or None)
+        eta_nonc,1, n, grad n and the element parts of eta_nonc,1^2 (for the marking indicators).
     """
     mus = disc.problem.mus
     t = mus[1] / (mus[0] + mus[1]) if len(mus) == 2 else 1.0
