@@ -55,7 +55,9 @@ def _build_parser():
                    help="initial guess per level: nested (prolongate previous level, default) or cold")
     r.add_argument("--tol", type=float, help="Newton tolerance on ||Phi||/||F|| (default 1e-10)")
     r.add_argument("--maxit", type=int, help="maximum Newton iterations per level (default 200)")
-    r.add_argument("--solver", choices=["sparsecholesky", "scipy"], help="sparse SPD solver")
+    r.add_argument("--solver", choices=["sparsecholesky", "scipy"],
+                   help="direct solver: sparsecholesky (NGSolve; UMFPACK for the non-symmetric NIPG/IIPG, default) "
+                        "or scipy (SuperLU)")
     r.add_argument("--no-condense", action="store_true",
                    help="hho: solve the full system instead of the statically condensed face system")
     r.add_argument("--estimate", action="store_true",
@@ -101,7 +103,7 @@ def _build_parser():
     r.add_argument("--test", action="store_true",
                    help="short run with the scene's TEST_OPTIONS (options given explicitly override them)")
     r.add_argument("-v", "--verbose", action="store_true", help="log every Newton iteration")
-    r.add_argument("-q", "--quiet", action="store_true", help="print only the final table")
+    r.add_argument("-q", "--quiet", action="store_true", help="no per-level progress: only the final table, the stop reason and the output paths")
 
     sub.add_parser("list", help="list the bundled scenes")
 
@@ -238,6 +240,8 @@ def _cmd_run(args, argv) -> int:
         raise _UsageError(f"option(s) {', '.join('--' + k.replace('_', '-') for k in used)} need --adaptive")
     given.update(adaptive=True if args.adaptive else None, **adaptive_opts)
     if args.test:
+        if not scene.test_options:
+            raise _UsageError(f"option --test needs TEST_OPTIONS in the scene file ({scene.name} has none)")
         given = {**scene.test_options, **{k: v for k, v in given.items() if v is not None}}
     try:
         options = RunOptions.for_scene(scene, **given)

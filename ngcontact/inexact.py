@@ -64,7 +64,7 @@ import numpy as np
 from .cfunctions import get_cfunction
 from .complementarity import ComplementaritySystem, LinearizedStep
 from .krylov import ILU, KrylovState, gmres
-from .newton import IterationRecord, NewtonResult, armijo_backtracking
+from .newton import IterationRecord, NewtonResult, armijo_backtracking, round_off_hint
 
 __all__ = ["MODES", "InexactOptions", "InexactIterationRecord", "InexactResult", "EstimatorRecord",
            "inexact_semismooth_newton", "stop_linear", "stop_newton", "algebraic_residual", "rhs_norm"]
@@ -414,6 +414,7 @@ def inexact_semismooth_newton(
             callback(rec)
         if failed:
             reason = f"line search failed at iteration {k} (step < {opt.min_step:.1e})"
+            reason += round_off_hint(rec.res, opt.tol)
             break
         if not np.isfinite(rec.res):
             reason = f"non-finite residual at iteration {k}"

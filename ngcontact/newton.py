@@ -213,6 +213,7 @@ def semismooth_newton(
                                                                options.armijo, options.min_step)
             if step < options.min_step:
                 reason = f"line search failed at iteration {k} (step < {options.min_step:.1e})"
+                reason += round_off_hint(float(np.sqrt(2 * min(psi, psit)) / scale), options.tol)
                 x, y, r, c, psi = xt, yt, rt, ct, psit
                 history.append(_record(k, r, c, psi, scale, system, x, y, active, step, info, t0))
                 if callback:
@@ -238,6 +239,16 @@ def semismooth_newton(
         if balanced and rec.eps_lin <= options.gamma_balance * rec.eps_disc:
             return NewtonResult(x, y, True, "balanced", k, history)
     return NewtonResult(x, y, False, reason, len(history) - 1, history)
+
+
+def round_off_hint(res: float, tol: float) -> str:
+    """Advice appended to a failed line search that ended within 100x of the tolerance: there the merit
+    function cannot decrease any more in floating point (measured: HHO without condensation,
+    Fischer-Burmeister, test 1 T1 stalls at ||Phi||/||F|| = 1.07e-10 against tol = 1e-10)."""
+    if not (res <= 100.0 * tol):
+        return ""
+    return (f"; it stalled at ||Phi||/||F|| = {res:.2e}, within 100x of tol = {tol:g}: the round-off floor of "
+            f"this system: try a looser --tol (e.g. {10 * tol:g})")
 
 
 def armijo_backtracking(merit, x, y, x_full, y_full, psi: float, armijo: float, min_step: float):

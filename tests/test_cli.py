@@ -283,3 +283,21 @@ def test_out_cannot_be_the_working_directory(tmp_path, monkeypatch, capsys):
         assert main(["run", "test1", "--levels", "1", "--out", out]) == 2
         assert "is the working directory or contains it" in capsys.readouterr().err
     assert work.is_dir() and not list(work.iterdir())
+
+
+def test_line_search_stall_at_the_round_off_floor_says_so(tmp_path, capsys):
+    """HHO without condensation, Fischer-Burmeister, test 1 T1: ||Phi||/||F|| stalls at 1.07e-10 > tol = 1e-10
+    (round-off floor of the full system); the warning says so and names --tol; with --tol 1e-9 it converges."""
+    args = ["run", "test1", "--disc", "hho", "--cfun", "fb", "--no-condense", "--levels", "2", "-q", "--no-vtk",
+            "--no-plots"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 3
+    err = capsys.readouterr().err
+    assert "round-off floor" in err and "--tol" in err
+    assert main(args + ["--tol", "1e-9", "--out", str(tmp_path / "b")]) == 0
+
+
+def test_test_flag_needs_test_options(tmp_path, capsys):
+    scene = tmp_path / "my_scene.py"
+    scene.write_text(USER_SCENE)
+    assert main(["run", str(scene), "--test", "--out", str(tmp_path / "o")]) == 2
+    assert "--test needs TEST_OPTIONS" in capsys.readouterr().err and not (tmp_path / "o").exists()
