@@ -195,8 +195,11 @@ def _parse_flux_order(value, order: int):
         raise _UsageError(f"option --flux-order must be p, p+1 or an integer, got {value!r}") from None
 
 
-def _check_run_flags(args, options) -> None:
+def _check_run_flags(args, options, scene) -> None:
     """Flags that the chosen run would silently ignore: usage errors."""
+    from .problems import TwoMembraneProblem
+
+    _check_solver_options(args, options.newton)
     if args.verbose and args.quiet:
         raise _UsageError("options -v/--verbose and -q/--quiet exclude each other")
     if args.adaptive and args.levels is not None:
@@ -206,6 +209,9 @@ def _check_run_flags(args, options) -> None:
         raise _UsageError(f"option --no-condense needs --disc hho (got --disc {options.disc})")
     if args.decouple and options.disc != "fem":
         raise _UsageError(f"option --decouple needs --disc fem (got --disc {options.disc})")
+    if args.decouple and not isinstance(scene.problem, TwoMembraneProblem):
+        raise _UsageError(f"option --decouple needs a two-membrane scene ({scene.name} is a "
+                          f"{type(scene.problem).__name__})")
     if args.decouple and (options.newton != "exact" or options.adaptive):
         raise _UsageError("option --decouple needs the direct Newton solves of uniform runs "
                           "(--newton exact, no --adaptive)")
@@ -216,17 +222,11 @@ def _check_run_flags(args, options) -> None:
 def _cmd_run(args, argv) -> int:
     from dataclasses import replace
 
-    from .problems import TwoMembraneProblem
     from .results import check_output_dir, write_run
     from .runner import RunOptions, run_scene
     from .scenes import load_scene
 
-    if args.out is not None:
-        check_output_dir(args.out, "--out")  # before loading anything: a bad path fails in a second
     scene = load_scene(args.scene)
-    if args.decouple and not isinstance(scene.problem, TwoMembraneProblem):
-        raise _UsageError(f"option --decouple needs a two-membrane scene ({scene.name} is a "
-                          f"{type(scene.problem).__name__})")
     given = dict(order=args.order, levels=args.levels, disc=args.disc, cfun=args.cfun, start=args.start,
                  tol=args.tol, maxit=args.maxit, solver=args.solver,
                  condense=False if args.no_condense else None, estimate=True if args.estimate else None,
@@ -245,8 +245,7 @@ def _cmd_run(args, argv) -> int:
         given = {**scene.test_options, **{k: v for k, v in given.items() if v is not None}}
     try:
         options = RunOptions.for_scene(scene, **given)
-        _check_run_flags(args, options)
-        _check_solver_options(args, options.newton)
+        _check_run_flags(args, options, scene)
         if args.flux_order is not None:
             if not (options.estimate or options.adaptive or options.newton == "adaptive"):
                 raise _UsageError("option --flux-order needs --estimate, --adaptive or --newton adaptive "
@@ -258,10 +257,11 @@ def _cmd_run(args, argv) -> int:
             budget = f", default budget --max-ndof {DEFAULT_MAX_NDOF}"
     except ValueError as exc:
         raise _UsageError(_cli_message(exc)) from None
-    out = Path(args.out if args.out is not None else f"results/runs/{scene.name}-{options.disc}-p{options.order}")
-    if options.adaptive and args.out is None:
-        out = out.with_name(out.name + "-adaptive")
-    check_output_dir(out, "--out")
+    given_out = args.out
+    if given_out is None:
+        given_out = f"results/runs/{scene.name}-{options.disc}-p{options.order}" + ("-adaptive" if options.adaptive else "")
+    check_output_dir(given_out, "--out")  # before solving: a bad path fails in a second
+    out = Path(given_out)
     say = (lambda m: None) if args.quiet else (lambda m: print(m, flush=True))
     desc = scene.description.rstrip(".")
     say(f"ngcontact: scene {scene.name} ({desc}) | {options.disc} P{options.order}, "
