@@ -28,6 +28,12 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q tests ngcontact
 
+## reference-histories: rerun the short reference runs of tests/reference_runs.py and rewrite
+## tests/data/reference_histories.json (only when a change of the numbers is intended)
+.PHONY: reference-histories
+reference-histories: $(STAMP)
+	$(PY) -m tests.reference_runs
+
 ## test-slow: also the long convergence studies
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "" tests ngcontact
