@@ -64,7 +64,7 @@ CMP_RUNS := $(foreach t,test1 test2,$(foreach m,$(CMP_METHODS),$(foreach p,1 2 3
             $(foreach t,test1 test2,$(foreach m,fem hho,$(foreach p,1 2 3 4,results/compare/runs/$(t)-$(m)-p$(p)-cold)))
 .PHONY: compare
 compare: $(CMP_RUNS)
-	$(PY) -m ngcontact.compare results/compare $(CMP_RUNS)
+	$(PY) -m ngcontact.studies.compare results/compare $(CMP_RUNS)
 
 # NIPG P3/P4 stop at T3: their general (unsymmetric) sparse LU on T4 takes 5-10 min per level on 2 cores
 cmp_levels = $(if $(filter nipg-p3 nipg-p4,$(word 2,$(subst -, ,$(1)))-$(word 3,$(subst -, ,$(1)))),4,5)
@@ -88,10 +88,10 @@ SWEEP_RUNS := $(foreach s,lshape test1 disk disk_fitted point_load,$(foreach m,u
 sweep: $(SWEEP_RUNS)
 
 results/sweep/runs/%: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.report run $* $@
+	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.sweep run $* $@
 
 report: $(STAMP)
-	$(PY) -m ngcontact.report report results/sweep/runs results/REPORT.md results/report
+	$(PY) -m ngcontact.studies.sweep report results/sweep/runs results/REPORT.md results/report
 
 ## bench: issue 7 benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
 ##        -> results/bench/*.csv + results/bench/BENCH.md; estimator vs Newton time -> results/bench/ESTIMATE.md.

@@ -44,7 +44,7 @@ def run_case(case: str, quick: bool) -> list:
     from ngsolve import SetNumThreads
 
     from ngcontact import CrissCrossSquare
-    from ngcontact.runner import RunOptions, run_scene
+    from ngcontact.drivers.uniform import RunOptions, run_scene
     from ngcontact.scenes import load_scene
 
     SetNumThreads(2)
@@ -96,7 +96,7 @@ def run_case(case: str, quick: bool) -> list:
         t_split = None
         split = disc.system.membrane_split()
         if split is not None:
-            from ngcontact.linalg import SPDSolver
+            from ngcontact.algebra.linalg import SPDSolver
 
             S, alpha = split
             m = disc.system.m

@@ -2,15 +2,15 @@
 
 Problem data (:mod:`ngcontact.problems`), domains and meshes
 (:mod:`ngcontact.domains`), discretizations (:mod:`ngcontact.discretizations`),
-C-functions and semismooth Newton (:mod:`ngcontact.cfunctions`,
-:mod:`ngcontact.newton`), runs and outputs (:mod:`ngcontact.runner`,
+C-functions and semismooth Newton (:mod:`ngcontact.algebra.cfunctions`,
+:mod:`ngcontact.newton`), runs and outputs (:mod:`ngcontact.drivers`,
 :mod:`ngcontact.results`, :mod:`ngcontact.plotting`, :mod:`ngcontact.cli`).
 """
 __version__ = "0.1.0"
 
 from .domains import (CrissCrossSquare, Domain, GeometryDomain, LShape, MeshFileDomain,  # noqa: E402
                       StructuredSquare, UnitDisk, mesh_size)
-from .problems import ExactSolution, ObstacleProblem, ProblemDataError, TwoMembraneProblem  # noqa: E402
+from .problems.base import ExactSolution, ObstacleProblem, ProblemDataError, TwoMembraneProblem  # noqa: E402
 
 __all__ = [
     "CrissCrossSquare", "Domain", "GeometryDomain", "LShape", "MeshFileDomain", "StructuredSquare",

@@ -197,7 +197,7 @@ def _parse_flux_order(value, order: int):
 
 def _check_run_flags(args, options, scene) -> None:
     """Flags that the chosen run would silently ignore: usage errors."""
-    from .problems import TwoMembraneProblem
+    from .problems.base import TwoMembraneProblem
 
     _check_solver_options(args, options.newton)
     if args.verbose and args.quiet:
@@ -223,7 +223,7 @@ def _cmd_run(args, argv) -> int:
     from dataclasses import replace
 
     from .results import check_output_dir, write_run
-    from .runner import RunOptions, run_scene
+    from .drivers.uniform import RunOptions, run_scene
     from .scenes import load_scene
 
     scene = load_scene(args.scene)
@@ -291,7 +291,7 @@ def _cmd_run(args, argv) -> int:
 def _cmd_demo(args, argv) -> int:
     from .plotting import plot_compare
     from .results import check_output_dir, write_run
-    from .runner import RunOptions, run_scene
+    from .drivers.uniform import RunOptions, run_scene
     from .scenes import load_scene
 
     scene = load_scene("test1")

@@ -82,7 +82,7 @@ the step was factorized), pcg_its (see :class:`ngcontact.newton.IterationRecord`
 gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
 3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),
 eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu, ilu_fill_ratio
-(nnz(L+U)/nnz(A) of the step's ILU; :class:`ngcontact.inexact.InexactIterationRecord`).
+(nnz(L+U)/nnz(A) of the step's ILU; :class:`ngcontact.newton.inexact.InexactIterationRecord`).
 """
 from __future__ import annotations
 
@@ -245,7 +245,7 @@ def _umask() -> int:
 
 
 def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) -> Path:
-    """Write all outputs of a :class:`~ngcontact.runner.RunResult` atomically into ``out_dir``.
+    """Write all outputs of a :class:`~ngcontact.drivers.RunResult` atomically into ``out_dir``.
 
     ``out_dir`` must pass :func:`check_output_dir` (absent, empty or a previous run directory, which is
     replaced).  The files are written into a hidden sibling directory that is renamed into place once

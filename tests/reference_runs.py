@@ -48,10 +48,7 @@ RTOL = 1e-7
 
 def compute(name: str) -> list:
     """Rows of the run ``name``, restricted to :data:`COLUMNS`."""
-    try:
-        from ngcontact.drivers import RunOptions, run_scene
-    except ImportError:  # the layout before the drivers package
-        from ngcontact.runner import RunOptions, run_scene
+    from ngcontact.drivers import RunOptions, run_scene
     from ngcontact.scenes import load_scene
 
     scene_name, opts = RUNS[name]

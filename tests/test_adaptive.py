@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from ngsolve import grad
 
-from ngcontact.adaptive import interior_nodes, refine
+from ngcontact.drivers.adaptive import interior_nodes, refine
 from ngcontact.cli import main
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.marking import doerfler, mark, maximum
-from ngcontact.newton import NewtonOptions, semismooth_newton
-from ngcontact.runner import RunOptions, run_scene
+from ngcontact.drivers.marking import doerfler, mark, maximum
+from ngcontact.newton.loop import NewtonOptions, semismooth_newton
+from ngcontact.drivers.uniform import RunOptions, run_scene
 from ngcontact.scenes import load_scene
 
 

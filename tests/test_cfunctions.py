@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ngcontact.cfunctions import FischerBurmeister, MinFunction, get_cfunction
+from ngcontact.algebra.cfunctions import FischerBurmeister, MinFunction, get_cfunction
 
 CFS = [MinFunction(), FischerBurmeister()]
 

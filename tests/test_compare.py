@@ -5,7 +5,7 @@ import math
 import pytest
 
 from ngcontact.cli import main
-from ngcontact.compare import time_to_error, write_report
+from ngcontact.studies.compare import time_to_error, write_report
 
 
 def test_time_to_error_interpolates_log_log():

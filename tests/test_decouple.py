@@ -5,7 +5,7 @@ from ngsolve import x, y
 
 from ngcontact import CrissCrossSquare, TwoMembraneProblem
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.newton import NewtonOptions, decoupled_newton, semismooth_newton
+from ngcontact.newton.loop import NewtonOptions, decoupled_newton, semismooth_newton
 
 
 def _disc(mu2, order=1, level=2):
@@ -34,7 +34,7 @@ def test_decoupled_newton_gives_the_coupled_solution(mu2, order):
 def test_no_split_for_the_obstacle_problem_or_coupled_blocks():
     d = _disc(1.0)
     s = d.system
-    from ngcontact.complementarity import ComplementaritySystem
+    from ngcontact.algebra.system import ComplementaritySystem
     import scipy.sparse as sp
 
     m = s.m

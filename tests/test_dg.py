@@ -11,10 +11,10 @@ import pytest
 from ngsolve import x, y
 
 from ngcontact import CrissCrossSquare, ExactSolution, TwoMembraneProblem
-from ngcontact.cfunctions import get_cfunction
-from ngcontact.complementarity import ComplementaritySystem
+from ngcontact.algebra.cfunctions import get_cfunction
+from ngcontact.algebra.system import ComplementaritySystem
 from ngcontact.discretizations.dg import DGComplementaritySystem, DGDiscretization
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.rates import fitted_rate
 from ngcontact.scenes import load_scene
 

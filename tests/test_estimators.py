@@ -12,7 +12,7 @@ from ngcontact import CrissCrossSquare, ExactSolution, TwoMembraneProblem
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.estimators import (complementarity_report, equilibration_defect, estimate, normal_jump,
                                   reconstruct_fluxes)
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.rates import fitted_rate
 from ngcontact.scenes import load_scene
 

@@ -113,7 +113,7 @@ def test_obstacle_solution_stays_above_obstacle(solve_one):
 def test_nested_p1_prolongation_equals_the_point_search(name, monkeypatch):
     """P1 on uniformly refined straight meshes: vertex / edge-midpoint lookup, no point search."""
     import ngcontact.discretizations.fem as fem
-    from ngcontact.newton import semismooth_newton
+    from ngcontact.newton.loop import semismooth_newton
 
     scene = load_scene(name)
     coarse_mesh, fine_mesh = list(scene.problem.domain.meshes(3))[1:]

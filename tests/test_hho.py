@@ -9,9 +9,9 @@ import pytest
 from ngsolve import Integrate, InnerProduct, grad, x, y
 
 from ngcontact import CrissCrossSquare, ExactSolution, TwoMembraneProblem
-from ngcontact.cfunctions import get_cfunction
+from ngcontact.algebra.cfunctions import get_cfunction
 from ngcontact.discretizations.hho import HHODiscretization
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.rates import fitted_rate
 from ngcontact.scenes import load_scene
 

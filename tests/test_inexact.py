@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from ngcontact.cfunctions import get_cfunction
+from ngcontact.algebra.cfunctions import get_cfunction
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.inexact import (InexactOptions, algebraic_residual, inexact_semismooth_newton, rhs_norm,
+from ngcontact.newton.inexact import (InexactOptions, algebraic_residual, inexact_semismooth_newton, rhs_norm,
                                stop_linear, stop_newton)
-from ngcontact.krylov import ILU, gmres
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.algebra.krylov import ILU, gmres
+from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
 
 

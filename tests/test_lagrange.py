@@ -5,7 +5,7 @@ import scipy.sparse as sp
 from ngsolve import H1, BilinearForm, GridFunction, dx, grad
 
 from ngcontact import CrissCrossSquare, UnitDisk
-from ngcontact.lagrange import LagrangeNodes
+from ngcontact.discretizations.lagrange import LagrangeNodes
 
 
 @pytest.mark.parametrize("p", [1, 2, 3, 4])

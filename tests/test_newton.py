@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from ngcontact.complementarity import ComplementaritySystem
-from ngcontact.newton import NewtonOptions, linearization_defect, semismooth_newton
+from ngcontact.algebra.system import ComplementaritySystem
+from ngcontact.newton.loop import NewtonOptions, linearization_defect, semismooth_newton
 
 
 def _system(n=60):
@@ -101,7 +101,7 @@ def test_balanced_stop_saves_newton_steps_without_moving_the_error():
     """test 1 (degenerate band u1 - u2 < 1e-12 around r = R), nested levels: the residual stop needs
     3-4 steps per level to settle ~1e-9 gaps; the balanced stop takes 1-2 and the energy error agrees to
     1e-6 relative (gamma = 1e-3: the linearization error is 1e-3 of the discretization proxy)."""
-    from ngcontact.runner import RunOptions, run_scene
+    from ngcontact.drivers.uniform import RunOptions, run_scene
     from ngcontact.scenes import load_scene
 
     scene = load_scene("test1")
@@ -119,7 +119,7 @@ def test_balanced_stop_saves_newton_steps_without_moving_the_error():
 
 
 def test_balanced_stop_option_errors_name_the_field():
-    from ngcontact.runner import RunOptions
+    from ngcontact.drivers.uniform import RunOptions
 
     with pytest.raises(ValueError, match="newton_stop"):
         RunOptions(newton_stop="energy")
@@ -133,7 +133,7 @@ def test_obstacle_warm_start_sweeps_keep_the_solution_and_help_the_first_step(mo
     """Nested start of the ex9 obstacle problem (level 4 from level 3): the projected Jacobi sweeps of
     ComplementaritySystem.warm_start leave the converged solution unchanged (finite termination) and
     misclassify no more rows in the first Newton step than the plain projected start (measured 4 vs 8)."""
-    from ngcontact.complementarity import ComplementaritySystem
+    from ngcontact.algebra.system import ComplementaritySystem
     from ngcontact.discretizations.fem import FEMDiscretization
     from ngcontact.scenes import load_scene
 

@@ -6,7 +6,7 @@ from ngsolve import Integrate, dx, sqrt
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.estimators import normal_jump, reconstruct_fluxes
 from ngcontact.estimators.flux import patch_solver
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
 
 

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from ngcontact.complementarity import LINEAR_PATHS, ComplementaritySystem, FactorReuse
-from ngcontact.linalg import SPDSolver, pcg
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.algebra.system import LINEAR_PATHS, ComplementaritySystem, FactorReuse
+from ngcontact.algebra.linalg import SPDSolver, pcg
+from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 
 
 def _laplace2d(n):
@@ -127,7 +127,7 @@ def test_pcg_converges_on_the_true_residual():
 def test_fixed_pattern_cholesky_solves_the_reduced_matrices():
     """FixedPatternCholesky: K + diag(d) on the kept unknowns, refactorized in K's pattern, solves like a
     fresh factorization of the reduced matrix; a second refactorization (other kept set) too."""
-    from ngcontact.linalg import FixedPatternCholesky
+    from ngcontact.algebra.linalg import FixedPatternCholesky
 
     K, *_ = _laplace2d(15)
     n = K.shape[0]

@@ -1,7 +1,7 @@
 """Discretizations: turn problem data + mesh into a complementarity system.
 
 Each class takes ``(problem, mesh, order=..., solver=...)`` and exposes
-``system`` (:class:`~ngcontact.complementarity.ComplementaritySystem`),
+``system`` (:class:`~ngcontact.algebra.system.ComplementaritySystem`),
 ``ndof``, ``initial_guess``, ``prolongate``, ``gridfunctions``, ``errors``,
 ``complementarity``, ``contact_points`` and ``time_assembly``.
 

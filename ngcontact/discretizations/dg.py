@@ -63,9 +63,9 @@ import scipy.sparse as sp
 from ngsolve import (VOL, BilinearForm, CoefficientFunction, GridFunction, Integrate, InnerProduct, IntegrationRule,
                      L2, LinearForm, TaskManager, TRIG, SEGM, ds, dx, grad, specialcf)
 
-from ..linalg import ngsolve_coo
-from ..complementarity import ComplementaritySystem, StepInfo
-from ..lagrange import lattice
+from ..algebra.linalg import ngsolve_coo
+from ..algebra.system import ComplementaritySystem, StepInfo
+from .lagrange import lattice
 from ..domains import INTERFACE
 
 __all__ = ["DGDiscretization", "SIPGDiscretization", "NIPGDiscretization", "IIPGDiscretization", "BrokenLagrange",
@@ -96,7 +96,7 @@ def _quadrature(shape, order: int):
 class BrokenLagrange:
     """Per-cell Lagrange nodal basis of P_p(T_h) on an affine triangular mesh.
 
-    The nodes of cell K are the lattice points :func:`ngcontact.lagrange.lattice`
+    The nodes of cell K are the lattice points :func:`ngcontact.discretizations.lagrange.lattice`
     mapped by x = xi v0 + eta v1 + (1 - xi - eta) v2 (NGSolve's element map).
 
     Attributes
@@ -357,7 +357,7 @@ class DGComplementaritySystem(ComplementaritySystem):
     """:class:`ComplementaritySystem` whose Newton steps allow a non-symmetric K (NIPG, IIPG).
 
     The linearization and its reduction are those of the base class (module
-    doc of :mod:`ngcontact.complementarity`): on equality rows the slave
+    doc of :mod:`ngcontact.algebra.system`): on equality rows the slave
     unknown is eliminated, x = Z z + x_aff; fixed rows move y' to the
     right-hand side; mixed rows add B_m^T diag(D w) B_m.  Z^T B^T e_l = 0 on
     equality rows, so Z^T (K x - B^T D y' - F) = 0 is free of the unknown

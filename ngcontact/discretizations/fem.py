@@ -12,7 +12,7 @@ The multiplier is lam_h = sum_l (X3)_l Theta_l with
 The algebraic problem is (DS2): E X = F, X1 - X2 >= 0, X3 >= 0, (X1 - X2).X3 = 0,
 E = [[mu1 S, 0, -D], [0, mu2 S, D]], S the Lagrange-basis stiffness matrix,
 obtained from NGSolve's hierarchical H1 matrices by the exact change of
-basis of :mod:`ngcontact.lagrange`.  The obstacle problem is the same with one
+basis of :mod:`ngcontact.discretizations.lagrange`.  The obstacle problem is the same with one
 field and g = X - psi.
 """
 from __future__ import annotations
@@ -25,9 +25,9 @@ import scipy.sparse as sp
 from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integrate, InnerProduct, LinearForm, TaskManager,
                      dx, grad)
 
-from ..complementarity import ComplementaritySystem
-from ..lagrange import LagrangeNodes, meshpoints
-from ..problems import ProblemDataError, check_data_on_points, data_fields
+from ..algebra.system import ComplementaritySystem
+from .lagrange import LagrangeNodes, meshpoints
+from ..problems.base import ProblemDataError, check_data_on_points, data_fields
 from ..domains import DIRICHLET
 
 __all__ = ["FEMDiscretization"]

@@ -45,7 +45,7 @@ Implementational aspects
     semismooth Newton step eliminates the cell unknowns and lam cell by cell
     for the current active set (every iteration) and solves for the face
     unknowns only; ``condense=False`` solves the full system with the generic
-    step of :class:`~ngcontact.complementarity.ComplementaritySystem`.  Both
+    step of :class:`~ngcontact.algebra.system.ComplementaritySystem`.  Both
     give the same iterates (to rounding).
 
 Literature
@@ -63,9 +63,9 @@ import scipy.sparse as sp
 from numpy.polynomial import legendre
 from ngsolve import SEGM, TRIG
 
-from ..complementarity import ComplementaritySystem, StepInfo
-from ..linalg import SPDSolver
-from ..linalg import ngsolve_coo
+from ..algebra.system import ComplementaritySystem, StepInfo
+from ..algebra.linalg import SPDSolver
+from ..algebra.linalg import ngsolve_coo
 from .dg import BrokenLagrange, _quadrature
 from ..domains import INTERFACE
 
@@ -346,7 +346,7 @@ class CondensedHHOSystem(ComplementaritySystem):
     """HHO complementarity system whose Newton step is solved on the face unknowns only.
 
     Per cell K the linearized equations (module doc of
-    :mod:`ngcontact.complementarity`) couple the cell values X^C_1, X^C_2 of
+    :mod:`ngcontact.algebra.system`) couple the cell values X^C_1, X^C_2 of
     both fields and X3|_K through the C-function rows of the cell's nodes only.
     They are eliminated cell by cell for the current active set:
 

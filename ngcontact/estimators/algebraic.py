@@ -36,7 +36,7 @@ Why not the multilevel construction of [JSC20] (Papez-Rude-Vohralik-Wohlmuth
 mesh sequence), so no hierarchy exists on most of them; the construction here
 needs only the current mesh.  Its price is nu extra GMRES iterations per
 estimator evaluation, which the inexact Newton driver counts (see
-:mod:`ngcontact.inexact`).
+:mod:`ngcontact.newton.inexact`).
 
 Limits: RT degree q <= 2 (P1 and P2; the P1 source uses the vertex-moment
 formula of :mod:`.flux`).

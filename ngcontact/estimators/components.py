@@ -5,7 +5,7 @@ components"; [JSC20] Sections 3-4).
 
 The iterate.  X^{k,i} = (x, y), x = [X1, X2] (interior Lagrange values of u1h, u2h), y = X3
 (lumped nodal multiplier for p = 1, dual-basis coefficients for p >= 2), in the layout of
-``disc.system`` (:mod:`ngcontact.complementarity`).  It need not satisfy anything: not the
+``disc.system`` (:mod:`ngcontact.algebra.system`).  It need not satisfy anything: not the
 complementarity (Newton not converged), not the linear equations (inexact linear solve).
 
 Algebraic residual.  The first two block rows of every Newton-step matrix A^{k-1} are those of
@@ -113,7 +113,7 @@ import numpy as np
 from ngsolve import (L2, CoefficientFunction, GridFunction, IfPos, Integrate, TaskManager, TRIG,
                      div, dx, grad)
 
-from ..cfunctions import get_cfunction
+from ..algebra.cfunctions import get_cfunction
 from .estimators import (QuadratureArrays, _P0Dual, _contact_work, _corrected_fields, _dirichlet_lifting, _mean_term,
                          concentrated_multiplier, element_diameters, friedrichs_constant, nonnegative_multiplier)
 from .flux import (ContactMultiplier, PatchContactMultiplier, PatchData, _vertex_moment_term, _vertex_rule,

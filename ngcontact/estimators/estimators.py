@@ -177,7 +177,7 @@ from ngsolve import (BND, H1, L2, SEGM, VOL, BilinearForm, BitArray, Coefficient
                      GridFunction, IfPos,
                      InnerProduct, Integrate, IntegrationRule, LinearForm, TaskManager, VectorL2, div, dx, grad, x, y)
 
-from ..lagrange import lattice
+from ..discretizations.lagrange import lattice
 from .flux import FluxReconstruction, disc_cache, reconstruct_fluxes, vertex_device_exact
 from ..domains import DIRICHLET
 

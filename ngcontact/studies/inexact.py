@@ -6,7 +6,7 @@ Problem / discretisation: the disk test of [JSC20] (``cases/disk.py``), FEM P1
 and P2 on netgen meshes of the unit disk with decreasing ``maxh`` (about 2k to
 35k triangles, independent meshes as in [JSC20]), Newton-min from the cold
 start X0 = [g, 0, 0] on every mesh, GMRES(100) + ILU on the reduced Newton
-systems (:mod:`ngcontact.krylov`, :mod:`ngcontact.inexact`).
+systems (:mod:`ngcontact.algebra.krylov`, :mod:`ngcontact.newton.inexact`).
 
 Runs (each a normal run directory under ``OUT/runs``, written by
 :func:`ngcontact.results.write_run`, so history.csv / newton.csv / summary.json
@@ -86,7 +86,7 @@ def _scene(maxh, fitted=False):
 
 def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None, fitted=False, ilu=ILUS[0]):
     from ..results import write_run
-    from ..runner import RunOptions, run_scene
+    from ..drivers.uniform import RunOptions, run_scene
 
     name = tag or f"p{order}{'f' if fitted else ''}-h{maxh:g}-{newton}"
     d = out / "runs" / name
@@ -122,7 +122,7 @@ def _load(d):
 def _log_run(out, order, maxh):
     """exact-gmres / inexact / adaptive with the estimators after every Newton step (plot data)."""
     from ..discretizations.fem import FEMDiscretization
-    from ..inexact import InexactOptions, inexact_semismooth_newton
+    from ..newton.inexact import InexactOptions, inexact_semismooth_newton
 
     f = out / f"estimators_p{order}.json"
     if f.is_file():
@@ -211,7 +211,7 @@ def _complete_lu_ratio(maxh):
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    from ..cfunctions import get_cfunction
+    from ..algebra.cfunctions import get_cfunction
     from ..discretizations.fem import FEMDiscretization
 
     scene = _scene(maxh, fitted=True)

@@ -3,7 +3,7 @@ semismooth Newton method", "Adaptive algorithm", "Numerical experiments P2",
 "Overall performance").
 
 Step k solves A^{k-1} X^k = B^{k-1} (A = [E; J_C(X^{k-1})], B = [F;
-J_C X^{k-1} - C(X^{k-1})]) by restarted GMRES + ILU (:mod:`ngcontact.krylov`)
+J_C X^{k-1} - C(X^{k-1})]) by restarted GMRES + ILU (:mod:`ngcontact.algebra.krylov`)
 warm-started from X^{k,0} = X^{k-1}, giving A X^{k,i} = B - R^{k,i}.
 
 Which linear system GMRES sees.  [JSC20] runs GMRES on the 3-field system.
@@ -61,10 +61,10 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
-from .cfunctions import get_cfunction
-from .complementarity import ComplementaritySystem, LinearizedStep
-from .krylov import ILU, KrylovState, gmres
-from .newton import IterationRecord, NewtonResult, armijo_backtracking, round_off_hint
+from ..algebra.cfunctions import get_cfunction
+from ..algebra.system import ComplementaritySystem, LinearizedStep
+from ..algebra.krylov import ILU, KrylovState, gmres
+from .loop import IterationRecord, NewtonResult, armijo_backtracking, round_off_hint
 
 __all__ = ["MODES", "InexactOptions", "InexactIterationRecord", "InexactResult", "EstimatorRecord",
            "inexact_semismooth_newton", "stop_linear", "stop_newton", "algebraic_residual", "rhs_norm"]
@@ -226,7 +226,7 @@ def _alg_terms(comp):
 
 
 def _components(disc, x, y, r_alg, sigma_alg, flux_order):
-    from .estimators.components import estimate_components
+    from ..estimators.components import estimate_components
 
     return estimate_components(disc, x, y, r_alg=r_alg, sigma_alg=sigma_alg, flux_order=flux_order)
 
@@ -282,7 +282,7 @@ def inexact_semismooth_newton(
         return r, c, 0.5 * (r @ r + c @ c)
 
     def sigma_alg_of(dx):
-        from .estimators.algebraic import algebraic_flux
+        from ..estimators.algebraic import algebraic_flux
 
         return algebraic_flux(disc, dx, order=alg_q)
 

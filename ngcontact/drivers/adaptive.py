@@ -2,7 +2,7 @@
 
 The loop builds no forms: a discretization turns (problem, mesh) into the
 algebraic complementarity system, Newton solves it, :func:`ngcontact.estimators.estimate`
-returns the element indicators eta_K, :mod:`ngcontact.marking` selects the
+returns the element indicators eta_K, :mod:`ngcontact.drivers.marking` selects the
 elements (Doerfler bulk criterion with parameter theta, or maximum marking),
 and NGSolve refines them by newest-vertex bisection with conforming closure
 (``mesh.SetRefinementFlags`` + ``mesh.Refine()``; new boundary points land on
@@ -35,12 +35,12 @@ from typing import Callable, Optional
 import numpy as np
 import ngsolve
 
-from .discretizations import DISCRETIZATIONS
-from .domains import mesh_size
+from ..discretizations import DISCRETIZATIONS
+from ..domains import mesh_size
 from .marking import mark
-from .newton import semismooth_newton
-from .rates import rates
-from .domains import DIRICHLET
+from ..newton.loop import semismooth_newton
+from ..rates import rates
+from ..domains import DIRICHLET
 
 __all__ = ["run_adaptive", "refine", "interior_nodes"]
 
@@ -64,15 +64,15 @@ def interior_nodes(mesh, order: int) -> int:
 
 
 def _solve(disc, x0, y0, options, cb, warm: bool = False):
-    """Newton on one level; the same drivers as :func:`ngcontact.runner.run_scene`
+    """Newton on one level; the same drivers as :func:`ngcontact.drivers.run_scene`
     (``warm``: x0 is the prolongated previous level, the reference of the balanced stop)."""
-    from .runner import balance_reference, newton_options
+    from .uniform import balance_reference, newton_options
 
     mode = getattr(options, "newton", "exact")
     if mode == "exact":
         ref = balance_reference(options, x0) if warm else None
         return semismooth_newton(disc.system, x0, y0, newton_options(options), callback=cb, reference=ref)
-    from .inexact import InexactOptions, inexact_semismooth_newton
+    from ..newton.inexact import InexactOptions, inexact_semismooth_newton
 
     iopts = InexactOptions(mode=mode.replace("exact-gmres", "exact"), cfun=options.cfun, tol=options.tol,
                            maxit=options.maxit, gamma_alg=options.gamma_alg, gamma_lin=options.gamma_lin,
@@ -82,7 +82,7 @@ def _solve(disc, x0, y0, options, cb, warm: bool = False):
 
 
 def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = None, newton_callback=None):
-    """Adaptive loop on ``scene`` (``options.adaptive``); returns a :class:`~ngcontact.runner.RunResult`.
+    """Adaptive loop on ``scene`` (``options.adaptive``); returns a :class:`~ngcontact.drivers.RunResult`.
 
     Parameters
     ----------
@@ -103,8 +103,8 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
         discretization, solution and estimate; ``result.stop_reason`` says
         why the loop ended.
     """
-    from .estimators import estimate
-    from .runner import RunResult, balance_columns
+    from ..estimators import estimate
+    from .uniform import RunResult, balance_columns
 
     say = progress or (lambda msg: None)
     problem = scene.problem

@@ -11,14 +11,14 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
-from .discretizations import DISCRETIZATIONS
-from .linalg import SOLVERS
-from .newton import NewtonOptions, Reference, decoupled_newton, semismooth_newton
-from .rates import rates
+from ..discretizations import DISCRETIZATIONS
+from ..algebra.linalg import SOLVERS
+from ..newton.loop import NewtonOptions, Reference, decoupled_newton, semismooth_newton
+from ..rates import rates
 
 __all__ = ["RunOptions", "RunResult", "run_scene", "ESTIMATED"]
 
-#: Newton drivers: exact = direct solves (ngcontact.newton); the others GMRES + ILU (ngcontact.inexact);
+#: Newton drivers: exact = direct solves (ngcontact.newton); the others GMRES + ILU (ngcontact.newton.inexact);
 #: 'exact-gmres' is the "exact" mode of [JSC20] (GMRES to 2e-12)
 NEWTON_MODES = ("exact", "exact-gmres", "inexact", "adaptive")
 
@@ -42,15 +42,15 @@ class RunOptions:
     estimate: bool = False  # a posteriori estimators per level (fem)
     flux_order: Optional[int] = None  # RT degree q of the estimators' flux: p (default) or p + 1 (~2x time; cli help)
     decouple: bool = False  # two membranes, K = blockdiag(S, alpha S): Newton on w = u1 - u2 only (newton.decoupled_newton)
-    newton: str = "exact"  # 'exact' (direct solves) | 'exact-gmres' | 'inexact' | 'adaptive' (ngcontact.inexact)
+    newton: str = "exact"  # 'exact' (direct solves) | 'exact-gmres' | 'inexact' | 'adaptive' (ngcontact.newton.inexact)
     gamma_alg: float = 0.3  # adaptive: stop GMRES when eta_alg <= gamma_alg max(eta_disc, eta_lin)
     gamma_lin: float = 0.3  # adaptive: stop Newton when eta_lin <= gamma_lin eta_disc
     nu: int = 10  # GMRES iterations between estimator evaluations
-    ilu_drop_tol: float = 1e-5  # GMRES modes: ILU threshold (scipy spilu drop_tol; ngcontact.inexact)
+    ilu_drop_tol: float = 1e-5  # GMRES modes: ILU threshold (scipy spilu drop_tol; ngcontact.newton.inexact)
     ilu_fill: float = 8.0  # GMRES modes: ILU fill bound, nnz(L + U) <= ilu_fill nnz(A) (spilu fill_factor)
     newton_stop: str = "residual"  # exact Newton: 'residual' (||Phi||/||F|| <= tol) | 'balanced' (newton module doc)
     gamma_balance: float = 1e-3  # balanced: stop when eps_lin <= gamma_balance eps_disc (nested levels only)
-    adaptive: bool = False  # solve -> estimate -> mark -> refine (ngcontact.adaptive) instead of uniform levels
+    adaptive: bool = False  # solve -> estimate -> mark -> refine (ngcontact.drivers.adaptive) instead of uniform levels
     marking: str = "doerfler"  # adaptive: 'doerfler' (bulk, theta) or 'max' (eta_K >= theta max eta_K)
     theta: float = 0.5  # adaptive: marking parameter in (0, 1]
     max_ndof: Optional[int] = None  # adaptive: do not solve on a mesh with more DOFs
@@ -210,7 +210,7 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
             sol = (decoupled_newton if options.decouple else semismooth_newton)(disc.system, x0, y0, nopts, callback=cb,
                                                                                reference=ref)
         else:
-            from .inexact import InexactOptions, inexact_semismooth_newton
+            from ..newton.inexact import InexactOptions, inexact_semismooth_newton
 
             iopts = InexactOptions(mode=options.newton.replace("exact-gmres", "exact"), cfun=options.cfun,
                                    tol=options.tol, maxit=options.maxit, gamma_alg=options.gamma_alg,
@@ -224,7 +224,7 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
         t3 = time.perf_counter()
         est, est_cols = None, {}
         if options.estimate:
-            from .estimators import estimate
+            from ..estimators import estimate
 
             est = estimate(disc, sol.x, sol.y, errors=False, flux_order=options.flux_order)
             if "err_energy" in errs:

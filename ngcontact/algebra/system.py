@@ -196,7 +196,7 @@ class ComplementaritySystem:
         """The reduced SPD system A z = b of the Newton step (module docstring) and the map z -> (x', y').
 
         Used by :meth:`newton_step` (direct solve) and by the inexact Newton
-        driver (:mod:`ngcontact.inexact`, Krylov solve).
+        driver (:mod:`ngcontact.newton.inexact`, Krylov solve).
         """
         n, m = self.n, self.m
         g = self.gap(x)
@@ -308,7 +308,7 @@ class LinearizedStep:
 
 
 class _KeptSolve:
-    """Reduced solve A z = b through a full-length :class:`~ngcontact.linalg.FixedPatternCholesky`."""
+    """Reduced solve A z = b through a full-length :class:`~ngcontact.algebra.linalg.FixedPatternCholesky`."""
 
     def __init__(self, fixed: FixedPatternCholesky, keep: np.ndarray):
         self.fixed, self.keep = fixed, keep
@@ -340,7 +340,7 @@ class FactorReuse:
     couplings of new unknowns, rank-2 master updates of eliminated slaves),
     so CG ends in O(#changed) iterations.  It runs to ``||b - A z|| <= rtol
     ||b||`` on the true residual, or to the rounding floor of a direct solve
-    (:func:`~ngcontact.linalg.pcg`), i.e. to direct-solver accuracy: the
+    (:func:`~ngcontact.algebra.linalg.pcg`), i.e. to direct-solver accuracy: the
     exact-Newton iterates are unchanged up to rounding.  (rtol = 1e-12 was
     not enough: the estimators' flux reconstruction inherits the residual,
     and its normal-continuity test failed at 7e-12; rtol = 1e-15 because
@@ -359,7 +359,7 @@ class FactorReuse:
     One-sided constraints (obstacle problem, the w-problem of the decoupled
     membranes): every Newton matrix is K + diag on the kept unknowns, so
     factorizations are numeric refactorizations in K's pattern with one
-    symbolic analysis per system (:class:`~ngcontact.linalg.FixedPatternCholesky`,
+    symbolic analysis per system (:class:`~ngcontact.algebra.linalg.FixedPatternCholesky`,
     ``fixed_pattern``), about half the cost of a fresh one; PCG is then tried
     for <= 16 changed rows only and capped at the cost of a refactorization.
     """

@@ -52,9 +52,9 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
-from .cfunctions import get_cfunction
-from .complementarity import LINEAR_PATHS, ComplementaritySystem, FactorReuse
-from .linalg import FixedPatternCholesky, SPDSolver
+from ..algebra.cfunctions import get_cfunction
+from ..algebra.system import LINEAR_PATHS, ComplementaritySystem, FactorReuse
+from ..algebra.linalg import FixedPatternCholesky, SPDSolver
 
 __all__ = ["NewtonOptions", "IterationRecord", "NewtonResult", "Reference", "semismooth_newton", "decoupled_newton",
            "armijo_backtracking", "linearization_defect"]
@@ -167,7 +167,7 @@ def semismooth_newton(
     """Solve the complementarity system from (x0, y0).
 
     ``callback(record)`` is called after every iteration (progress output).
-    ``fixed``: a :class:`~ngcontact.linalg.FixedPatternCholesky` of ``system.K`` whose symbolic
+    ``fixed``: a :class:`~ngcontact.algebra.linalg.FixedPatternCholesky` of ``system.K`` whose symbolic
     analysis the factorizations reuse (one-sided constraints only; see :class:`FactorReuse`).
     ``reference``: the coarser level's prolongated solution for ``options.stop == 'balanced'``
     (without it the balanced stop is the residual stop).

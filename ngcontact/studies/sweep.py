@@ -1,9 +1,9 @@
 """Sweep definition and report: uniform vs adaptive refinement, error and estimator against ndof and run time.
 
 ``make sweep`` runs every entry of :data:`SWEEP` as an independent make target
-(``python -m ngcontact.report run NAME`` -> ``results/sweep/runs/NAME``, a normal
+(``python -m ngcontact.studies.sweep run NAME`` -> ``results/sweep/runs/NAME``, a normal
 run directory written by the CLI), so ``make -j2 sweep`` runs two at a time;
-``make report`` (``python -m ngcontact.report report``) only reads their
+``make report`` (``python -m ngcontact.studies.sweep report``) only reads their
 ``history.csv`` / ``summary.json`` and writes ``results/REPORT.md`` and the
 PNGs under ``results/report/``.
 
@@ -104,7 +104,7 @@ def fitted_slope(ndof, values, last: int = 4) -> float:
 
 
 def _load(run_dir: Path):
-    from .results import read_history
+    from ..results import read_history
 
     rows = read_history(run_dir / "history.csv")
     summary = json.loads((run_dir / "summary.json").read_text())
@@ -131,7 +131,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plotting import slope_label, tidy_log_axes
+    from ..plotting import slope_label, tidy_log_axes
 
     runs_dir, out_md, fig_dir = Path(runs_dir), Path(out_md), Path(fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -305,7 +305,7 @@ def main(argv=None) -> int:
         print(" ".join(sweep_names()))
         return 0
     if argv[:1] == ["run"] and len(argv) == 3:  # run NAME OUTDIR
-        from .cli import main as cli_main
+        from ..cli import main as cli_main
 
         # one NGSolve thread per sweep run (the CLI reads NGCONTACT_THREADS; see cli._apply_thread_setting),
         # so that every run is timed alike whether the sweep runs sequentially or as `make -j2 sweep`
@@ -314,7 +314,7 @@ def main(argv=None) -> int:
     if argv[:1] == ["report"] and len(argv) == 4:  # report RUNS_DIR OUT_MD FIG_DIR
         print(write_report(*argv[1:]))
         return 0
-    print("usage: python -m ngcontact.report names | run NAME OUTDIR | report RUNS_DIR OUT_MD FIG_DIR",
+    print("usage: python -m ngcontact.studies.sweep names | run NAME OUTDIR | report RUNS_DIR OUT_MD FIG_DIR",
           file=sys.stderr)
     return 2
 

@@ -78,7 +78,7 @@ class FixedPatternCholesky:
     member has the same pattern and NGSolve's ``SparseCholesky.Update()`` refactors it numerically.
     Measured on ex9's matrix with 1.05M unknowns (2 threads): first factorization 4.4 s, numeric
     refactorization 2.0 s (fresh SPDSolver factorization 5.2 s).  Used by
-    :class:`~ngcontact.complementarity.FactorReuse` for one-sided (obstacle-type) constraints, whose
+    :class:`~ngcontact.algebra.system.FactorReuse` for one-sided (obstacle-type) constraints, whose
     Newton matrices are exactly of this form.
     """
 
