@@ -44,7 +44,7 @@ def run_case(case: str, quick: bool) -> list:
     from ngsolve import SetNumThreads
 
     from ngcontact import CrissCrossSquare
-    from ngcontact.drivers.uniform import RunOptions, run_scene
+    from ngcontact.drivers import RunOptions, run_scene
     from ngcontact.scenes import load_scene
 
     SetNumThreads(2)

@@ -18,7 +18,7 @@ import time
 
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.estimators import estimate, estimate_components
-from ngcontact.newton.loop import NewtonOptions, semismooth_newton
+from ngcontact.newton import NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
 
 

@@ -1,6 +1,6 @@
 import pytest
 
-from ngcontact.newton.loop import NewtonOptions, semismooth_newton
+from ngcontact.newton import NewtonOptions, semismooth_newton
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.scenes import load_scene
 
@@ -8,7 +8,7 @@ from ngcontact.scenes import load_scene
 @pytest.fixture
 def solve_levels():
     """Run a bundled scene through the runner; returns the RunResult."""
-    from ngcontact.drivers.uniform import RunOptions, run_scene
+    from ngcontact.drivers import RunOptions, run_scene
 
     def _run(scene_name, order, levels, cfun="min", start="nested"):
         scene = load_scene(scene_name)

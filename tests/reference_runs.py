@@ -27,7 +27,7 @@ RUNS = {
     "disk-fem-p1-estimate": ("disk", dict(order=1, levels=3, estimate=True)),
     "disk-fem-p2-estimate-cold": ("disk", dict(order=2, levels=2, estimate=True, start="cold")),
     "disk-fem-p1-inexact": ("disk", dict(order=1, levels=2, newton="inexact")),
-    "disk-fem-p1-exact-gmres": ("disk", dict(order=1, levels=2, newton="exact-gmres")),
+    "disk-fem-p1-gmres": ("disk", dict(order=1, levels=2, newton="gmres")),
     "disk-fem-p1-adaptive-newton": ("disk", dict(order=1, levels=2, newton="adaptive")),
     "disk-fem-p2-adaptive-newton-fb": ("disk", dict(order=2, levels=1, newton="adaptive", cfun="fb")),
     "lshape-adaptive-p1": ("lshape", dict(order=1, adaptive=True, max_levels=8)),

@@ -11,9 +11,9 @@ from ngsolve import grad
 from ngcontact.drivers.adaptive import interior_nodes, refine
 from ngcontact.cli import main
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.drivers.marking import doerfler, mark, maximum
-from ngcontact.newton.loop import NewtonOptions, semismooth_newton
-from ngcontact.drivers.uniform import RunOptions, run_scene
+from ngcontact.marking import doerfler, mark, maximum
+from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.drivers import RunOptions, run_scene
 from ngcontact.scenes import load_scene
 
 
@@ -58,7 +58,7 @@ def test_marking_rejects_bad_theta(bad):
 def test_marking_rejects_bad_indicators_and_strategy():
     with pytest.raises(ValueError, match="eta_K"):
         doerfler([1.0, -2.0], 0.5)
-    with pytest.raises(ValueError, match="strategy"):
+    with pytest.raises(ValueError, match="option marking"):
         mark([1.0], 0.5, "greedy")
 
 

@@ -5,7 +5,7 @@ from ngsolve import x, y
 
 from ngcontact import CrissCrossSquare, TwoMembraneProblem
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.newton.loop import NewtonOptions, decoupled_newton, semismooth_newton
+from ngcontact.newton import NewtonOptions, decoupled_newton, semismooth_newton
 
 
 def _disc(mu2, order=1, level=2):

@@ -3,8 +3,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from ngcontact.algebra.cfunctions import get_cfunction
 from ngcontact.algebra.system import ComplementaritySystem
-from ngcontact.newton.loop import NewtonOptions, linearization_defect, semismooth_newton
+from ngcontact.newton import NewtonOptions, StopOptions, semismooth_newton
+from ngcontact.newton.stopping import linearization_defect
 
 
 def _system(n=60):
@@ -58,8 +60,28 @@ def test_history_logs_residuals_active_sets_and_times():
     res = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(), callback=seen.append)
     assert len(seen) == res.iterations + 1 == len(res.history)
     assert all(r.time_linear >= 0 for r in res.history)
-    assert res.history[-1].n_changed == 0 or res.history[-1].res < 1e-10
+    assert res.history[-1].res <= NewtonOptions().tol
     assert [r.k for r in res.history] == list(range(res.iterations + 1))
+
+
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_every_record_describes_its_iterate(cfun):
+    """Record k (residual, active set, changes) agrees with the iterate X^k, obtained as the result of a
+    run stopped after k iterations."""
+    s = _system()
+    full = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun))
+    cf = get_cfunction(cfun)
+    active_prev = np.zeros(s.m, dtype=bool)  # X^0 = 0: g = y = 0, every row active
+    active_prev[:] = True
+    for k in range(1, full.iterations + 1):
+        it = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun, maxit=k))
+        rec = full.history[k]
+        phi = np.concatenate([s.residual(it.x, it.y), cf.value(s.gap(it.x), it.y)])
+        assert rec.res == pytest.approx(np.linalg.norm(phi) / np.linalg.norm(s.F), rel=1e-9, abs=1e-15)
+        active = s.gap(it.x) <= it.y
+        assert rec.n_active == int(active.sum())
+        assert rec.n_changed == int((active != active_prev).sum())
+        active_prev = active
 
 
 def test_fb_line_search_decreases_the_merit_function():
@@ -69,11 +91,20 @@ def test_fb_line_search_decreases_the_merit_function():
     assert all(b < a for a, b in zip(r, r[1:]))
 
 
-@pytest.mark.parametrize("bad", [dict(cfun="max"), dict(tol=-1.0), dict(maxit=0), dict(stop="energy"),
-                                 dict(gamma_balance=0.0), dict(gamma_balance=1.5)])
-def test_bad_options_are_rejected(bad):
-    with pytest.raises(ValueError):
+@pytest.mark.parametrize("bad", [dict(cfun="max"), dict(tol=-1.0), dict(maxit=0), dict(armijo=0.7),
+                                 dict(line_search="yes")])
+def test_bad_newton_options_are_rejected_by_name(bad):
+    (name, _), = bad.items()
+    with pytest.raises(ValueError, match=f"option {name} "):
         NewtonOptions(**bad)
+
+
+@pytest.mark.parametrize("bad", [dict(newton_stop="energy"), dict(gamma_balance=0.0), dict(gamma_balance=1.5),
+                                 dict(gamma_lin=1.0)])
+def test_bad_stop_options_are_rejected_by_name(bad):
+    (name, _), = bad.items()
+    with pytest.raises(ValueError, match=f"option {name} "):
+        StopOptions(**bad)
 
 
 @pytest.mark.parametrize("cfun", ["min", "fb"])
@@ -101,7 +132,7 @@ def test_balanced_stop_saves_newton_steps_without_moving_the_error():
     """test 1 (degenerate band u1 - u2 < 1e-12 around r = R), nested levels: the residual stop needs
     3-4 steps per level to settle ~1e-9 gaps; the balanced stop takes 1-2 and the energy error agrees to
     1e-6 relative (gamma = 1e-3: the linearization error is 1e-3 of the discretization proxy)."""
-    from ngcontact.drivers.uniform import RunOptions, run_scene
+    from ngcontact.drivers import RunOptions, run_scene
     from ngcontact.scenes import load_scene
 
     scene = load_scene("test1")
@@ -119,7 +150,7 @@ def test_balanced_stop_saves_newton_steps_without_moving_the_error():
 
 
 def test_balanced_stop_option_errors_name_the_field():
-    from ngcontact.drivers.uniform import RunOptions
+    from ngcontact.drivers import RunOptions
 
     with pytest.raises(ValueError, match="newton_stop"):
         RunOptions(newton_stop="energy")

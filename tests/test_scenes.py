@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ngcontact.drivers.uniform import RunOptions, run_scene
+from ngcontact.drivers import RunOptions, run_scene
 from ngcontact.scenes import list_scenes, load_scene
 
 

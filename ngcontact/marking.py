@@ -18,15 +18,22 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["doerfler", "maximum", "mark", "MARKINGS"]
+__all__ = ["doerfler", "maximum", "mark", "MARKINGS", "check_marking"]
+
+
+def check_marking(strategy: str = "doerfler", theta: float = 0.5) -> None:
+    """The one check of the marking parameters (run options and direct calls): ValueError naming the option."""
+    if strategy not in MARKINGS:
+        raise ValueError(f"option marking must be one of {sorted(MARKINGS)}, got {strategy!r}")
+    if isinstance(theta, bool) or not isinstance(theta, (int, float, np.floating)) or not 0 < theta <= 1:
+        raise ValueError(f"option theta must be a number in (0, 1], got {theta!r}")
 
 
 def _check(eta_K, theta, name):
     eta = np.asarray(eta_K, dtype=float).ravel()
     if eta.size and (not np.all(np.isfinite(eta)) or eta.min() < 0):
         raise ValueError(f"{name}: eta_K must be finite and >= 0")
-    if isinstance(theta, bool) or not isinstance(theta, (int, float, np.floating)) or not 0 < theta <= 1:
-        raise ValueError(f"{name}: theta must be a number in (0, 1], got {theta!r}")
+    check_marking(name, theta)
     return eta, float(theta)
 
 
@@ -65,7 +72,7 @@ def doerfler(eta_K, theta: float = 0.5) -> np.ndarray:
 
 def maximum(eta_K, theta: float = 0.5) -> np.ndarray:
     """Maximum marking: every element with eta_K >= theta max eta_K (none if all vanish)."""
-    eta, theta = _check(eta_K, theta, "maximum")
+    eta, theta = _check(eta_K, theta, "max")
     if eta.size == 0 or eta.max() <= 0.0:
         return np.zeros(0, dtype=np.int64)
     order = _by_decreasing(eta)
@@ -77,6 +84,5 @@ MARKINGS = {"doerfler": doerfler, "max": maximum}
 
 def mark(eta_K, theta: float = 0.5, strategy: str = "doerfler") -> np.ndarray:
     """Dispatch by name: ``strategy`` in :data:`MARKINGS` ('doerfler' or 'max')."""
-    if strategy not in MARKINGS:
-        raise ValueError(f"marking strategy must be one of {sorted(MARKINGS)}, got {strategy!r}")
+    check_marking(strategy, theta)
     return MARKINGS[strategy](eta_K, theta)

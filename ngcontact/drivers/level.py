@@ -1,0 +1,196 @@
+"""One level step: discretize -> initial guess -> Newton -> errors -> estimate, and its history row.
+
+Every driver (uniform levels, the adaptive loop) calls :func:`solve_level` once per mesh and
+:func:`level_row` for the history.csv row; the drivers differ only in where the meshes come from
+and when they stop.  The estimators reach the Newton layer as a :class:`LevelEstimator` object
+(adaptive Krylov mode), so the Newton layer imports no estimator.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Callable, List, Optional
+
+import numpy as np
+
+from ..discretizations import DISCRETIZATIONS
+from ..newton import Reference, decoupled_newton, semismooth_newton
+from ..rates import rates
+
+__all__ = ["RunResult", "LevelOutcome", "LevelEstimator", "solve_level", "level_row", "update_rates",
+           "record_level", "iteration_callback", "status"]
+
+
+@dataclass
+class RunResult:
+    """Per-level rows (history.csv), per-iteration rows (newton.csv), final level."""
+
+    scene: object
+    options: object
+    rows: List[dict] = field(default_factory=list)
+    iterations: List[dict] = field(default_factory=list)
+    discretization: object = None
+    x: Optional[np.ndarray] = None
+    y: Optional[np.ndarray] = None
+    estimate: object = None  # Estimate of the final level (when estimated)
+    converged: bool = True
+    failures: List[str] = field(default_factory=list)
+    stop_reason: Optional[str] = None  # adaptive runs: why the loop ended
+
+
+class LevelEstimator:
+    """The estimators of one discretization, as the Krylov strategy of the Newton loop calls them:
+    ``components(x, y, r_alg, dx)`` with ``dx`` the look-ahead increment that defines sigma_alg."""
+
+    def __init__(self, disc, flux_order):
+        from ..estimators.algebraic import algebraic_flux
+        from ..estimators.components import estimate_components
+
+        self.disc, self.flux_order = disc, flux_order
+        self._flux, self._components = algebraic_flux, estimate_components
+
+    def components(self, x, y, r_alg, dx):
+        sig = None if dx is None else self._flux(self.disc, dx, order=max(self.disc.order - 1, 0))
+        return self._components(self.disc, x, y, r_alg=r_alg, sigma_alg=sig, flux_order=self.flux_order)
+
+
+@dataclass
+class LevelOutcome:
+    """What :func:`solve_level` produced on one mesh, with its timings [s]."""
+
+    disc: object
+    sol: object  # NewtonResult
+    errors: dict
+    complementarity: dict
+    estimate: object = None
+    time_prolong: float = 0.0
+    time_solve: float = 0.0
+    time_post: float = 0.0
+    time_estimate: float = 0.0
+
+
+def newton_solve(disc, x0, y0, options, callback=None, warm: bool = False):
+    """Newton on one discretization with the run's linear-solve strategy and stopping rule.
+
+    ``warm``: x0 is the prolongated coarser solution -- the reference of the balanced stop,
+    eps_disc = 2^-p |||x - x0||| (p = the energy rate of every discretization here, HHO's included).
+    """
+    nopts = options.newton_options
+    if options.newton == "direct":
+        stop = options.stop_options.rule(Reference(np.array(x0, dtype=float), 2.0 ** -options.order) if warm else None)
+        solve = decoupled_newton if options.decouple else semismooth_newton
+        return solve(disc.system, x0, y0, nopts, callback, stop=stop)
+    estimator = LevelEstimator(disc, options.flux_order) if options.newton == "adaptive" else None
+    linear = replace(options.linear, estimator=estimator)
+    return semismooth_newton(disc.system, x0, y0, nopts, callback, linear=linear, stop=options.stop_options.rule())
+
+
+def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, estimate: bool = False,
+                callback: Optional[Callable] = None) -> LevelOutcome:
+    """Discretize ``problem`` on ``mesh``, solve, evaluate errors (and the estimate).
+
+    ``previous``: (disc, x, y) of the coarser level, prolongated when ``options.start == 'nested'``;
+    otherwise the start is ``initial_guess`` (the scene's, or None).
+    """
+    Disc = DISCRETIZATIONS[options.disc]
+    kw = {"condense": options.condense} if options.disc == "hho" else {}
+    disc = Disc(problem, mesh, order=options.order, solver=options.solver, **kw)
+    warm = previous is not None and options.start == "nested"
+    t0 = time.perf_counter()
+    x0, y0 = disc.prolongate(*previous) if warm else disc.initial_guess(initial_guess)
+    t1 = time.perf_counter()
+    sol = newton_solve(disc, x0, y0, options, callback, warm=warm)
+    t2 = time.perf_counter()
+    errs = disc.errors(sol.x, sol.y)
+    comp = disc.complementarity(sol.x, sol.y)
+    t3 = time.perf_counter()
+    est = None
+    if estimate:
+        from ..estimators import estimate as estimate_fn
+
+        est = estimate_fn(disc, sol.x, sol.y, errors=False, flux_order=options.flux_order)
+        if "err_energy" in errs:
+            est.err_energy = errs["err_energy"]
+    t4 = time.perf_counter()
+    return LevelOutcome(disc, sol, errs, comp, est, t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+
+
+def balance_columns(sol) -> dict:
+    """history.csv columns of the balanced stop."""
+    last = sol.history[-1]
+    return {"newton_balanced": int(sol.reason == "balanced"), "eps_lin_final": last.eps_lin,
+            "eps_disc_final": last.eps_disc}
+
+
+def krylov_columns(sol) -> dict:
+    """history.csv columns of the GMRES Newton modes."""
+    h = sol.history
+    return {"gmres_its": sol.gmres_total, "gmres_max_step": max(r.gmres_its for r in h),
+            "gmres_first_step": h[1].gmres_its if len(h) > 1 else 0,
+            "n_estimates": sum(r.n_estimates for r in h), "time_estimate_newton_s": sol.time_estimate,
+            "eta_disc_final": h[-1].eta_disc, "eta_lin_final": h[-1].eta_lin, "eta_alg_final": h[-1].eta_alg}
+
+
+def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = None, times: dict = None) -> dict:
+    """The history.csv row of one level (results.py documents the columns).
+
+    ``head``: driver columns after ``nodes`` (adaptive: ``marked``); ``times``: driver timings
+    (``time_mesh_s`` first, then e.g. ``time_mark_s``), placed before the level's own timings.
+    """
+    disc, sol = out.disc, out.sol
+    est_cols = out.estimate.summary() if out.estimate is not None else {}
+    times = dict(times or {})
+    row = {"level": level, "nelem": disc.mesh.ne, "h": h, "ndof": disc.ndof,
+           **({"ndof_sc": disc.ndof_sc} if _declared(disc, "ndof_sc") is not None else {}),
+           "nodes": disc.n_interior, **(head or {}), **out.errors,
+           "newton_its": sol.iterations, "newton_converged": int(sol.converged), "res_final": sol.history[-1].res,
+           **(balance_columns(sol) if options.newton_stop == "balanced" else {}),
+           "active_nodes": sol.history[-1].n_active,
+           "linear_size": max((r.linear_size for r in sol.history), default=0),
+           **(krylov_columns(sol) if options.newton != "direct" else {}),
+           **out.complementarity,
+           "time_mesh_s": times.pop("time_mesh_s", 0.0), **times,
+           "time_assembly_s": disc.time_assembly, "time_prolong_s": out.time_prolong,
+           "time_solve_s": out.time_solve, "time_linear_s": sol.time_linear,
+           **({"time_condense_s": disc.time_condense} if _declared(disc, "time_condense") is not None else {}),
+           "time_post_s": out.time_post, **est_cols,
+           **({"time_estimate_s": out.time_estimate} if out.estimate is not None else {})}
+    return row
+
+
+def _declared(disc, name):
+    # TODO(layout): plain attribute access once every discretization declares ndof_sc / time_condense
+    return getattr(disc, name, None)
+
+
+def update_rates(rows: List[dict], h_key) -> None:
+    """rate_energy / rate_eta of every row against ``h_key(row)`` (h, or ndof^-1/2 on adaptive meshes)."""
+    hs = [h_key(q) for q in rows]
+    for col, rate_col in (("err_energy", "rate_energy"), ("eta", "rate_eta")):
+        if rows and col in rows[-1]:
+            for q, r in zip(rows, rates(hs, [q[col] for q in rows])):
+                q[rate_col] = r
+
+
+def record_level(result: RunResult, level: int, out: LevelOutcome) -> None:
+    """Keep the final level's solution in ``result``; a level whose Newton failed is a named failure."""
+    result.discretization, result.x, result.y = out.disc, out.sol.x, out.sol.y
+    if out.estimate is not None:
+        result.estimate = out.estimate
+    if not out.sol.converged:
+        result.converged = False
+        result.failures.append(f"level {level}: Newton did not converge: {out.sol.reason}")
+
+
+def iteration_callback(result: RunResult, level: int, newton_callback=None):
+    """The Newton callback of one level: newton.csv rows (+ the caller's progress callback)."""
+    def cb(rec):
+        result.iterations.append({"level": level, **asdict(rec)})
+        if newton_callback:
+            newton_callback(level, rec)
+    return cb
+
+
+def status(sol) -> str:
+    """The Newton outcome in a progress line."""
+    return sol.reason if sol.converged else "NOT converged: " + sol.reason

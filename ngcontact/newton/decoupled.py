@@ -1,0 +1,83 @@
+"""Two membranes with K = blockdiag(S, alpha S): Newton on w = u1 - u2 only.
+
+Same discrete solution as the coupled Newton, half-size Newton systems: the w-problem is an
+obstacle-type complementarity system (one-sided rows), s = x_1 + alpha x_2 one unconstrained solve
+(:meth:`ComplementaritySystem.membrane_split` gives S and alpha, or None when the structure does
+not allow it).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import Callable, Optional
+
+import numpy as np
+
+from ..algebra.cfunctions import get_cfunction
+from ..algebra.linalg import FixedPatternCholesky, SPDSolver
+from ..algebra.system import ComplementaritySystem
+from .base import IterationRecord, NewtonOptions, NewtonResult
+from .linear import DirectSolve
+from .loop import semismooth_newton
+
+__all__ = ["decoupled_newton"]
+
+
+def decoupled_newton(
+    system: ComplementaritySystem,
+    x0: np.ndarray,
+    y0: np.ndarray,
+    options: NewtonOptions = NewtonOptions(),
+    callback: Optional[Callable[[IterationRecord], None]] = None,
+    stop=None,
+) -> NewtonResult:
+    """Two membranes with K = blockdiag(S, alpha S): Newton on the obstacle problem for
+    w = x_1 - x_2 plus one unconstrained solve for s = x_1 + alpha x_2
+    (:meth:`ComplementaritySystem.membrane_split`); otherwise :func:`semismooth_newton`.
+
+    Same discrete solution, half-size Newton systems.  The stopping test keeps
+    its meaning: the w-loop runs to tol * ||F|| / ||F_w||, and the result is
+    accepted only if ||Phi(X)|| / ||F|| <= tol on the coupled system; if not,
+    the coupled Newton continues from it.  Records report the w-iterations.
+    ``stop``: the stopping rule of the coupled problem (residual or balanced).
+    """
+    split = system.membrane_split()
+    if split is None:
+        return semismooth_newton(system, x0, y0, options, callback, stop=stop)
+    S, alpha = split
+    m = system.m
+    F1, F2 = system.F[:m], system.F[m:]
+    Fw = F1 - F2 / alpha
+    wsys = ComplementaritySystem(S, Fw, np.arange(m), -np.ones(m, dtype=np.int64), np.zeros(m),
+                                 system.D * (1.0 + 1.0 / alpha), solver=system.solver)
+    scale, scale_w = np.linalg.norm(system.F), max(np.linalg.norm(Fw), np.finfo(float).tiny)
+    t0 = time.perf_counter()
+    fixed = None
+    if system.solver == "sparsecholesky" and options.reuse_factorization:
+        # S is also the w-system's matrix: its symbolic analysis serves the w-Newton steps
+        fixed = FixedPatternCholesky(S)
+        fixed.factor(np.ones(m, dtype=bool))
+        s = fixed.solve(F1 + F2)
+    else:
+        s = SPDSolver(S, system.solver).solve(F1 + F2)
+    t_s = time.perf_counter() - t0
+    wopts = replace(options, tol=max(options.tol * scale / scale_w, np.finfo(float).eps))
+    wstop = None if stop is None else stop.on_difference(m)
+    res = semismooth_newton(wsys, x0[:m] - x0[m:], y0, wopts, callback,
+                            linear=DirectSolve(reuse=options.reuse_factorization, fixed=fixed), stop=wstop)
+    w = res.x
+    x = np.concatenate([(s + alpha * w) / (1 + alpha), (s - w) / (1 + alpha)])
+    if res.history:
+        res.history[0].time_linear += t_s
+        res.history[0].time_step += t_s
+    cf = get_cfunction(options.cfun)
+    full = np.sqrt(np.linalg.norm(system.residual(x, res.y)) ** 2
+                   + np.linalg.norm(cf.value(system.gap(x), res.y)) ** 2) / max(scale, np.finfo(float).tiny)
+    if res.converged and (full <= options.tol or res.reason == "balanced"):
+        return NewtonResult(x, res.y, True, res.reason, res.iterations, res.history)
+    more = semismooth_newton(system, x, res.y, options, callback, stop=stop)  # fallback: coupled Newton
+    more.history = res.history + more.history[1:]
+    more.iterations = res.iterations + more.iterations
+    return more
+
+
