@@ -216,6 +216,7 @@ def _check_run_flags(args, options, scene) -> None:
 def _cmd_run(args, argv) -> int:
     from dataclasses import replace
 
+    from .plotting import write_run_plots
     from .results import check_output_dir, write_run
     from .drivers import RunOptions, run_scene
     from .scenes import load_scene
@@ -269,7 +270,8 @@ def _cmd_run(args, argv) -> int:
                   f"changed={rec.n_changed} step={rec.step:.3g} linear={rec.time_linear:.3f}s", flush=True)
     t0 = time.perf_counter()
     result = run_scene(scene, options, progress=say, newton_callback=newton_cb)
-    write_run(result, out, vtk=not args.no_vtk, plots=not args.no_plots, argv=["python -m ngcontact", *argv])
+    write_run(result, out, vtk=not args.no_vtk, plots=None if args.no_plots else write_run_plots,
+              argv=["python -m ngcontact", *argv])
     print(format_table(result.rows, f"\n{scene.name}: {options.disc} P{options.order} ({time.perf_counter() - t0:.1f} s)"))
     if result.stop_reason and args.quiet:  # otherwise the loop's progress line said it
         print(f"adaptive loop stopped: {result.stop_reason}")
@@ -285,7 +287,7 @@ def _cmd_run(args, argv) -> int:
 
 
 def _cmd_demo(args, argv) -> int:
-    from .plotting import plot_compare
+    from .plotting import plot_compare, write_run_plots
     from .results import check_output_dir, write_run
     from .drivers import RunOptions, run_scene
     from .scenes import load_scene
@@ -307,7 +309,7 @@ def _cmd_demo(args, argv) -> int:
         print(f"== demo: {scene.name} ({scene.description.rstrip('.')}), FEM P{p}, {args.levels} uniform levels",
               flush=True)
         res = run_scene(scene, opts, progress=lambda m: print(m, flush=True))
-        d = write_run(res, out / f"p{p}", argv=["python -m ngcontact", *argv])
+        d = write_run(res, out / f"p{p}", plots=write_run_plots, argv=["python -m ngcontact", *argv])
         dirs.append(d)
         print(format_table(res.rows, f"\ntest1 FEM P{p}"))
         print()

@@ -1,6 +1,8 @@
 """Plots.  Convergence plots read only the written CSV files (compute, then plot).
 
-matplotlib with the Agg backend, no LaTeX.
+:func:`write_run_plots` draws every figure of a run directory; it is the ``plots`` hook of
+:func:`ngcontact.results.write_run`, which itself writes data only.  matplotlib with the Agg
+backend, no LaTeX.
 """
 from __future__ import annotations
 
@@ -15,7 +17,8 @@ import numpy as np  # noqa: E402
 
 from .results import read_history  # noqa: E402
 
-__all__ = ["plot_run", "plot_compare", "plot_solution", "plot_eta_map", "plot_mesh", "slope_label", "tidy_log_axes"]
+__all__ = ["write_run_plots", "plot_run", "plot_compare", "plot_solution", "plot_eta_map", "plot_mesh", "slope_label",
+           "tidy_log_axes"]
 
 
 def slope_label(p: int) -> str:
@@ -48,8 +51,24 @@ def _slope_line(ax, n, e, slope, label):
     ax.loglog(n, ref, "k--", lw=0.8, label=label)
 
 
+def write_run_plots(run_dir, result) -> list:
+    """All figures of a run into ``run_dir``, which already holds its history.csv and newton.csv:
+    :func:`plot_run`; with a discretization, solution.png (and mesh.png for adaptive runs); with an
+    estimate, eta_map.png.  Returns the file names written."""
+    run_dir = Path(run_dir)
+    written = plot_run(run_dir, result.options.order)
+    if result.discretization is not None:
+        written.append(plot_solution(result.discretization, result.x, result.y, run_dir / "solution.png").name)
+        if getattr(result.options, "adaptive", False):
+            written.append(plot_mesh(result.discretization, result.x, result.y, run_dir / "mesh.png").name)
+    if result.estimate is not None:
+        written.append(plot_eta_map(result.estimate, run_dir / "eta_map.png").name)
+    return written
+
+
 def plot_run(run_dir, order: int) -> list:
-    """convergence.png and error_vs_time.png (energy error and/or estimator eta) and newton.png."""
+    """convergence.png and error_vs_time.png (energy error and/or estimator eta) and newton.png (one
+    curve per level, or per level and time step n)."""
     run_dir = Path(run_dir)
     rows = read_history(run_dir / "history.csv")
     written = []
@@ -79,11 +98,11 @@ def plot_run(run_dir, order: int) -> list:
     if newton.exists():
         its = read_history(newton)
         fig, ax = plt.subplots(figsize=(5, 4))
-        for lev in sorted({r["level"] for r in its}):
-            pts = [(r["k"], r["res"]) for r in its if r["level"] == lev and r["res"] > 0]
+        for key in sorted({(r["level"], r.get("n")) for r in its}, key=lambda key: (key[0], key[1] or 0)):
+            pts = [(r["k"], r["res"]) for r in its if (r["level"], r.get("n")) == key and r["res"] > 0]
             if pts:
                 k, res = zip(*pts)
-                ax.semilogy(k, res, ".-", label=f"level {lev}")
+                ax.semilogy(k, res, ".-", label=f"level {key[0]}" + ("" if key[1] is None else f", n = {key[1]}"))
         ax.set_xlabel("Newton iteration k")
         ax.set_ylabel(r"$\|\Phi(X^k)\| / \|F\|$")
         ax.grid(True, which="both", alpha=0.3)

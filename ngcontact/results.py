@@ -1,14 +1,22 @@
-"""Writing a run's outputs: history.csv, newton.csv, summary.json, plots, VTK.
+"""Run directories: writing and reading history.csv, newton.csv, summary.json and the VTK files.
 
-Everything is written into a temporary sibling directory that replaces the
-target only once complete, so a failed run never leaves partial outputs
-that look finished.
+This module writes data only.  Figures are drawn by a caller-supplied hook (``write_run(...,
+plots=ngcontact.plotting.write_run_plots)``) into the same staging directory, so that plots
+and data appear together: everything is written into a temporary sibling directory that
+replaces the target only once complete, and a failed run never leaves partial outputs that look
+finished.
 
-history.csv columns (one row per level; a column is present only when the
-run computes it -- error columns need an exact solution):
+Rows are keyed by ``level`` and, in time-dependent runs, by the time step ``n`` and the time
+``t`` (:data:`KEY_COLUMNS`).  The key columns present come first in history.csv and newton.csv,
+in that order; a stationary run has no ``n`` and ``t`` columns.
+
+history.csv columns (one row per level, or per level and time step; a column is present
+only when the run computes it -- error columns need an exact solution):
 
 ==================  ===========================================================
 level               mesh level j (T_j: j uniform refinements of the coarse mesh)
+n                   time-dependent runs: time step index n
+t                   time-dependent runs: time t_n of the row
 nelem               number of triangles
 h                   mesh size (nominal for structured meshes, else max edge)
 ndof                DOFs as counted in [CAMWA21]: fem (fields + 1) x interior nodes;
@@ -75,7 +83,7 @@ time_total_s        whole level
 time_cum_s          cumulated over levels 0..j
 ==================  ===========================================================
 
-newton.csv: one row per (level, iteration k) with res, res_lin, res_c,
+newton.csv: one row per (level, time step n if any, iteration k) with the key columns, k, res, res_lin, res_c,
 n_active, n_changed, step, time_linear, time_step, linear_size, linear_path (0 fresh
 factorization, 1 PCG preconditioned by an earlier step's factorization, 2 PCG gave up and
 the step was factorized), pcg_its (see :class:`ngcontact.newton.IterationRecord`); with --newton other than exact also
@@ -100,10 +108,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_run", "check_output_dir", "read_history", "markdown_table", "HISTORY_COLUMNS"]
+__all__ = ["write_run", "check_output_dir", "read_history", "markdown_table", "versions", "git_revision",
+           "HISTORY_COLUMNS", "KEY_COLUMNS"]
+
+#: the columns that identify a row: mesh level, time step index, time (the last two only in time-dependent runs)
+KEY_COLUMNS = ("level", "n", "t")
 
 HISTORY_COLUMNS = [
-    "level", "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "err_energy", "rate_energy", "err_max_nodal",
+    *KEY_COLUMNS, "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "err_energy", "rate_energy", "err_max_nodal",
     "err_jump", "newton_its", "newton_converged", "res_final", "newton_balanced",
     "eps_lin_final", "eps_disc_final", "active_nodes", "linear_size",
     "gmres_its", "gmres_max_step", "gmres_first_step", "n_estimates", "time_estimate_newton_s",
@@ -127,24 +139,29 @@ def _json_value(v):
     return v
 
 
-def _fmt(v):
+def _csv_value(v):
+    """A value for a CSV cell: floats with 10 significant digits, NaN as an empty cell."""
     if isinstance(v, float):
         return "" if math.isnan(v) else f"{v:.10g}"
     return v
 
 
 def _write_csv(path: Path, rows, columns=None):
-    columns = columns or list(rows[0]) if rows else []
-    present = [c for c in columns if any(c in r for r in rows)]
+    """``rows`` (dicts) as CSV: the key columns first, then ``columns`` (default: the rows' keys in
+    the order first seen); a column is written only when some row has it."""
+    columns = columns or list(dict.fromkeys(k for r in rows for k in r))
+    order = [*KEY_COLUMNS, *(c for c in columns if c not in KEY_COLUMNS)]
+    present = [c for c in order if any(c in r for r in rows)]
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(present)
         for r in rows:
-            w.writerow([_fmt(r.get(c, "")) for c in present])
+            w.writerow([_csv_value(r.get(c, "")) for c in present])
 
 
 def read_history(path) -> list:
-    """Rows of a history.csv as dicts of floats/ints (empty cells -> nan)."""
+    """Rows of a history.csv or newton.csv as dicts of ints / floats in the file's column order
+    (empty cells: nan; the time ``t``: always a float)."""
     out = []
     with open(path) as fh:
         for r in csv.DictReader(fh):
@@ -152,6 +169,8 @@ def read_history(path) -> list:
             for k, v in r.items():
                 if v == "":
                     row[k] = float("nan")
+                elif k == "t":
+                    row[k] = float(v)
                 else:
                     try:
                         row[k] = int(v)
@@ -244,12 +263,31 @@ def _umask() -> int:
     return mask
 
 
-def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) -> Path:
+def write_run(result, out_dir, vtk: bool = True, plots=None, argv=None) -> Path:
     """Write all outputs of a :class:`~ngcontact.drivers.RunResult` atomically into ``out_dir``.
 
-    ``out_dir`` must pass :func:`check_output_dir` (absent, empty or a previous run directory, which is
-    replaced).  The files are written into a hidden sibling directory that is renamed into place once
-    complete; on any exception (and, through the CLI, on Ctrl-C or SIGTERM) it is removed."""
+    Parameters
+    ----------
+    result : RunResult
+        ``rows`` (history.csv), ``iterations`` (newton.csv), ``scene``, ``options`` (a dataclass),
+        ``converged``, ``failures``, optional ``stop_reason``; ``discretization``, ``x``, ``y`` and
+        ``estimate`` (each may be None) for the VTK files.
+    out_dir : path
+        must pass :func:`check_output_dir` (absent, empty or a previous run directory, which is replaced).
+    vtk : bool
+        write solution.vtu (needs ``result.discretization``).
+    plots : callable or None
+        ``plots(directory, result)`` draws the figures into the staging directory after the CSV and
+        JSON files are written there, e.g. :func:`ngcontact.plotting.write_run_plots`; None or False: no
+        figures.
+    argv : list of str or None
+        the command line, recorded in summary.json.
+
+    The files are written into a hidden sibling directory that is renamed into place once complete; on
+    any exception (of ``plots`` too; through the CLI, on Ctrl-C or SIGTERM) it is removed."""
+    if plots and not callable(plots):
+        raise TypeError(f"plots must be None or a callable (directory, result), got {plots!r}; "
+                        "figures are drawn by e.g. ngcontact.plotting.write_run_plots")
     out_dir = check_output_dir(out_dir, "out_dir")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{out_dir.name}-", dir=out_dir.parent))
@@ -275,21 +313,7 @@ def write_run(result, out_dir, vtk: bool = True, plots: bool = True, argv=None) 
         }
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         if plots:
-            from .plotting import plot_run
-
-            plot_run(tmp, result.options.order)
-            if result.discretization is not None:
-                from .plotting import plot_solution
-
-                plot_solution(result.discretization, result.x, result.y, tmp / "solution.png")
-                if getattr(result.options, "adaptive", False):
-                    from .plotting import plot_mesh
-
-                    plot_mesh(result.discretization, result.x, result.y, tmp / "mesh.png")
-            if result.estimate is not None:
-                from .plotting import plot_eta_map
-
-                plot_eta_map(result.estimate, tmp / "eta_map.png")
+            plots(tmp, result)
         if vtk and result.discretization is not None:
             _write_vtk(result, tmp / "solution")
         if os.path.lexists(out_dir):
@@ -336,8 +360,13 @@ def _write_vtk(result, basename: Path):
               subdivision=max(disc.order - 1, 0), legacy=False).Do()
 
 
+def _key_cells(row) -> list:
+    """The table cells of a row's keys: T<level>, then the time step and time when present."""
+    return [f"T{row['level']}"] + ([str(row["n"]), f"{row['t']:.6g}"] if "n" in row else [])
+
+
 def markdown_table(run_dirs) -> str:
-    """One markdown table per run directory: level, ndof, error, rate, Newton its, times."""
+    """One markdown table per run directory: level (time step, time), ndof, error, rate, Newton its, times."""
     out = []
     for d in map(Path, run_dirs):
         rows = read_history(d / "history.csv")
@@ -346,12 +375,13 @@ def markdown_table(run_dirs) -> str:
         out.append(f"### {s['scene']}: {o['disc'].upper()} P{o['order']}, Newton-{o['cfun']}, {o['start']} start"
                    + ("" if s["converged"] else "  **(NOT converged: " + "; ".join(s["failures"]) + ")**"))
         has_err = bool(rows) and "err_energy" in rows[0]
-        head = ["level", "ndof"] + (["err_energy", "rate"] if has_err else []) + \
+        keys = ["level"] + (["n", "t"] if rows and "n" in rows[0] else [])
+        head = keys + ["ndof"] + (["err_energy", "rate"] if has_err else []) + \
             ["Newton its", "solve [s]", "linear [s]", "total [s]"]
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
         for r in rows:
-            cells = [f"T{r['level']}", str(r["ndof"])]
+            cells = _key_cells(r) + [str(r["ndof"])]
             if has_err:
                 rate = r.get("rate_energy", float("nan"))
                 cells += [f"{r['err_energy']:.3e}", "-" if rate != rate else f"{rate:.2f}"]
@@ -361,10 +391,10 @@ def markdown_table(run_dirs) -> str:
         out.append("")
         if rows and "eta" in rows[0]:  # --estimate: the estimator and its parts per level
             cols = [c for c in ESTIMATE_TABLE_COLUMNS if c in rows[0]]
-            out.append("| level | " + " | ".join(cols) + " |")
-            out.append("|" + "---|" * (len(cols) + 1))
+            out.append("| " + " | ".join(keys + cols) + " |")
+            out.append("|" + "---|" * (len(keys) + len(cols)))
             for r in rows:
-                cells = [f"T{r['level']}"] + [_cell(r.get(c)) for c in cols]
+                cells = _key_cells(r) + [_cell(r.get(c)) for c in cols]
                 out.append("| " + " | ".join(cells) + " |")
             out.append("")
     return "\n".join(out)
@@ -376,6 +406,7 @@ ESTIMATE_TABLE_COLUMNS = ("err_energy", "eta", "i_eff", "rate_eta", "eta_F", "et
 
 
 def _cell(v) -> str:
+    """A markdown cell: "-" for None / NaN, 3 decimals in [0.1, 100), else 4 significant digits."""
     if v is None or (isinstance(v, float) and v != v):
         return "-"
     if isinstance(v, float):

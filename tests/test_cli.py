@@ -301,3 +301,27 @@ def test_test_flag_needs_test_options(tmp_path, capsys):
     scene.write_text(USER_SCENE)
     assert main(["run", str(scene), "--test", "--out", str(tmp_path / "o")]) == 2
     assert "--test needs TEST_OPTIONS" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_table_and_plot_commands_read_run_directories(tmp_path, capsys):
+    """`table` prints the markdown tables of run directories (their numbers as in history.csv), `plot`
+    writes the overlay PNG; a directory without history.csv is refused with one line."""
+    from ngcontact.results import read_history
+
+    dirs = [str(tmp_path / f"p{p}") for p in (1, 2)]
+    for p, d in zip((1, 2), dirs):
+        assert main(["run", "test1", "--order", str(p), "--levels", "2", "--estimate", "--out", d, "-q",
+                     "--no-vtk", "--no-plots"]) == 0
+    capsys.readouterr()
+    assert main(["table", *dirs]) == 0
+    text = capsys.readouterr().out
+    assert "### test1: FEM P1" in text and "### test1: FEM P2" in text
+    for d in dirs:
+        final = read_history(f"{d}/history.csv")[-1]
+        assert f"| T1 | {final['ndof']} | {final['err_energy']:.3e} |" in text
+        assert f"| {final['i_eff']:.3f} |" in text  # the estimator table
+    png = tmp_path / "cmp" / "overlay.png"
+    assert main(["plot", *dirs, "--out", str(png)]) == 0
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert main(["table", str(tmp_path)]) == 2
+    assert "is not a run directory" in capsys.readouterr().err

@@ -1,18 +1,22 @@
-"""The discretization comparison report (issue 3 study) and the new run options."""
+"""The discretization comparison report, the time-to-accuracy rule of the study tables, and the
+--disc / --no-condense run options."""
 import csv
 import math
 
 import pytest
 
 from ngcontact.cli import main
-from ngcontact.studies.compare import time_to_error, write_report
+from ngcontact.studies.compare import write_report
+from ngcontact.studies.tables import time_to_reach
 
 
-def test_time_to_error_interpolates_log_log():
-    rows = [{"err_energy": 1e-2, "time_cum_s": 1.0}, {"err_energy": 1e-4, "time_cum_s": 100.0}]
-    assert time_to_error(rows, 1e-3) == pytest.approx(10.0)  # halfway in log-log
-    assert time_to_error(rows, 1e-2) == pytest.approx(1.0)
-    assert math.isnan(time_to_error(rows, 1e-5))
+def test_time_to_reach_interpolates_log_log_between_the_bracketing_levels():
+    times, errors = [1.0, 10.0, 100.0, 400.0], [1e-1, 1e-2, 1e-4, 1e-5]
+    assert time_to_reach(times, errors, 1e-3) == pytest.approx(31.6227766)  # halfway in log-log, levels 1-2
+    assert time_to_reach(times, errors, 1e-2) == pytest.approx(10.0)  # reached on a level: its time
+    assert time_to_reach(times, errors, 1.0) == 1.0  # the first level is already below
+    assert math.isnan(time_to_reach(times, errors, 1e-6))  # never reached: no extrapolation
+    assert time_to_reach([0.0, 5.0], [1e-1, 1e-3], 1e-2) == 5.0  # no logarithm of t = 0: the level's time
 
 
 @pytest.fixture(scope="module")

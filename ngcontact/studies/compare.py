@@ -1,4 +1,4 @@
-"""Comparison report of discretizations (issue 3 study): ``python -m ngcontact.studies.compare OUT RUN_DIR...``.
+"""Comparison report of discretizations: ``python -m ngcontact.studies.compare OUT RUN_DIR...``.
 
 Reads only the run directories written by ``python -m ngcontact run`` (their
 ``history.csv`` and ``summary.json``), so it can be re-run without solving
@@ -13,8 +13,8 @@ anything.  Writes into ``OUT``:
   Newton counts next to [CAMWA21]) and the "who wins" statements, all
   computed from the runs.
 
-"Time to reach an error" is interpolated log-log between consecutive levels
-of a run (``nan`` when the run never reaches it).
+"Time to reach an error": :func:`ngcontact.studies.tables.time_to_reach` on the
+cumulative run time (``nan`` when the run never reaches it).
 """
 from __future__ import annotations
 
@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from ..results import read_history
+from .tables import fmt, time_to_reach
 
-__all__ = ["load_runs", "write_report", "time_to_error", "main"]
+__all__ = ["load_runs", "write_report", "main"]
 
 #: [CAMWA21] Newton-min iterations per level T0..T4 from a cold start (REFERENCE.md, approximate)
 PUBLISHED_COLD = {("fem", 1): "4, 7, 11, 20, 38", ("fem", 4): "10, 20, 34, 66, 124",
@@ -62,25 +63,6 @@ def load_runs(dirs) -> list:
     return runs
 
 
-def time_to_error(rows, target: float, time_key: str = "time_cum_s") -> float:
-    """Cumulative time at which the energy error first reaches ``target`` (log-log interpolation)."""
-    prev = None
-    for r in rows:
-        e, t = r.get("err_energy", float("nan")), r[time_key]
-        if e <= target:
-            if prev is None or prev[0] <= 0 or t <= 0 or prev[1] <= 0:
-                return t
-            (e0, t0) = prev
-            s = (math.log(target) - math.log(e0)) / (math.log(e) - math.log(e0))
-            return math.exp(math.log(t0) + s * (math.log(t) - math.log(t0)))
-        prev = (e, t)
-    return float("nan")
-
-
-def _fmt(v, f="{:.3e}"):
-    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f.format(v)
-
-
 def _finest_table(runs, scene) -> list:
     out = ["| p | method | ndof | solved size | err_energy | rate | Newton its (per level) | assembly [s] "
            "| condense [s] | linear [s] | total [s] |", "|" + "---|" * 11]
@@ -92,11 +74,11 @@ def _finest_table(runs, scene) -> list:
         out.append("| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |".format(
             r["options"]["order"], r["label"] + ("" if r["converged"] else " (NOT converged)")
             + ("" if f["level"] == 4 else f" (T{f['level']})"), f["ndof"],
-            f.get("linear_size", "-"), _fmt(f.get("err_energy")), _fmt(f.get("rate_energy"), "{:.2f}"), its,
-            _fmt(sum(q["time_assembly_s"] for q in r["rows"]), "{:.2f}"),
-            _fmt(sum(q.get("time_condense_s", 0.0) for q in r["rows"]), "{:.2f}"),
-            _fmt(sum(q["time_linear_s"] for q in r["rows"]), "{:.2f}"),
-            _fmt(f["time_cum_s"], "{:.2f}")))
+            f.get("linear_size", "-"), fmt(f.get("err_energy")), fmt(f.get("rate_energy"), ".2f"), its,
+            fmt(sum(q["time_assembly_s"] for q in r["rows"]), ".2f"),
+            fmt(sum(q.get("time_condense_s", 0.0) for q in r["rows"]), ".2f"),
+            fmt(sum(q["time_linear_s"] for q in r["rows"]), ".2f"),
+            fmt(f["time_cum_s"], ".2f")))
     return out
 
 
@@ -119,7 +101,9 @@ def _winners(runs, scene) -> list:
                 f"({', '.join(f'{k} {v:.2g}' for k, v in sorted(const.items(), key=lambda kv: kv[1]))})")
         if targets:
             t = targets[-1]
-            times = {r["label"]: time_to_error(r["rows"], t) for r in rp}
+            times = {r["label"]: time_to_reach([q["time_cum_s"] for q in r["rows"]],
+                                               [q.get("err_energy", float("nan")) for q in r["rows"]], t)
+                     for r in rp}
             ok = {k: v for k, v in times.items() if math.isfinite(v)}
             if ok:
                 fastest = min(ok, key=ok.get)

@@ -1,4 +1,4 @@
-"""Issue 5 study: exact / inexact / adaptive inexact semismooth Newton on the [JSC20] disk test.
+"""Study: exact / inexact / adaptive inexact semismooth Newton on the [JSC20] disk test.
 
 ``python -m ngcontact.studies.inexact OUT [--quick]`` (``make inexact-study``: OUT = results/inexact).
 
@@ -17,16 +17,18 @@ carry the counters):
   reference for the energy error;
 * P1, finest mesh: adaptive with (gamma_alg, gamma_lin) in {0.3, 0.03}^2;
 * P2: the same three modes on the P2 meshes;
-* P2 on the same meshes fitted to r = 1/sqrt 2 (``disk_fitted``): direct, inexact and adaptive
-  (on the unfitted meshes the jump of f inside elements makes the P2 estimator 3.0-3.3 x the error
-  (eta_disc 2.5-2.8 x at the adaptive runs' accepted iterates),
-  so the adaptive stopping rules stop early; on the fitted ones I_eff is 1.03-1.19);
+* P2 on the same meshes fitted to r = 1/sqrt 2 (``disk_fitted``): direct, inexact and adaptive.
+  On the unfitted meshes f jumps inside elements and the P2 estimator overestimates the error
+  (I_eff of ``disk`` P2 in results/estimators/TABLES.md; eta_disc against the error at the
+  adaptive runs' accepted iterates in results/inexact/TABLES.md), so the adaptive stopping rules
+  stop early; on the fitted meshes the estimator is sharp (``disk_fitted`` P2 in
+  results/estimators/TABLES.md);
 * P2 fitted, finest mesh: inexact and adaptive with two stronger ILU preconditioners
   (:data:`ILUS`; the ILU fill against the iteration counts and the run time), and the
   strongest one also on the unfitted finest P2 mesh;
-* P1, the ~8k mesh: exact-gmres and inexact with the estimators evaluated after
-  every Newton step (``log_estimators``) for the plot "estimators vs Newton
-  iteration" (those evaluations are diagnostics, not part of the run time).
+* P1 on the ~8k mesh and P2 on the coarsest mesh: exact-gmres, inexact and adaptive with the
+  estimators evaluated after every Newton step (``log_estimators``) for the plot "estimators
+  vs Newton iteration" (those evaluations are diagnostics, not part of the run time).
 
 Outputs in OUT: ``all.csv`` (one row per run), ``TABLES.md`` (tables next to
 the published [JSC20] numbers of REFERENCE.md), ``estimators_p1.png``,
@@ -46,11 +48,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .tables import fmt
+
 __all__ = ["main", "P1_MAXH", "P2_MAXH", "PUBLISHED"]
 
-#: maxh of the netgen disk meshes: ~2.1k, 4.2k, 8.3k, 17k, 34k triangles
+#: maxh of the netgen disk meshes: ~2.1k, 4.2k, 8.3k, 17k, 34k triangles (results/inexact/TABLES.md)
 P1_MAXH = (0.06, 0.042, 0.03, 0.021, 0.0148)
-#: P2: ~2.1k, 8.3k, 27k triangles
+#: P2: ~2.1k, 8.3k, 27k triangles (results/inexact/TABLES.md)
 P2_MAXH = (0.06, 0.03, 0.0165)
 QUICK_P1, QUICK_P2 = (0.1, 0.07), (0.1,)
 GAMMAS = ((0.3, 0.3), (0.03, 0.3), (0.3, 0.03), (0.03, 0.03))
@@ -97,7 +101,7 @@ def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None, fitte
                       gamma_lin=gamma_lin, nu=10, ilu_drop_tol=ilu[0], ilu_fill=ilu[1])
     t0 = time.perf_counter()
     res = run_scene(scene, opts)
-    write_run(res, d, vtk=False, plots=False, argv=["python -m ngcontact.studies.inexact", name])
+    write_run(res, d, vtk=False, argv=["python -m ngcontact.studies.inexact", name])
     r = res.rows[-1]
     print(f"{name:28s} nelem {r['nelem']:6d} Newton {r['newton_its']:3d} GMRES {r.get('gmres_its', '-')!s:>6s} "
           f"err {r['err_energy']:.5e} solve {r['time_solve_s']:7.1f}s ({time.perf_counter() - t0:.1f}s)", flush=True)
@@ -195,12 +199,6 @@ def _plot_vs_mesh(rows, png):
     plt.close(fig)
 
 
-def _fmt(v, f="{:.4g}"):
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "-"
-    return f.format(v)
-
-
 def _ilu_tag(ilu):
     return f"ilu{ilu[0]:g}-{ilu[1]:g}"
 
@@ -246,7 +244,7 @@ def _ilu_table(rows, out):
         L += [f"## ILU sensitivity, {label}, {ne} elements", "",
               "The preconditioner's fill against the iteration counts and the run time (same runs otherwise; "
               "`--ilu-drop`, `--ilu-fill` on the CLI). fill = nnz(L+U)/nnz(A) of the ILU, mean over the Newton "
-              "steps" + (f"; SuperLU's complete LU of the first Newton matrix has fill {_fmt(full, '{:.1f}')}."
+              "steps" + (f"; SuperLU's complete LU of the first Newton matrix has fill {fmt(full, '.1f')}."
                          if order == "2f" else "."), "",
               "| ILU (drop, fill bound) | fill | mode | Newton | GMRES total | GMRES accepted | GMRES 1st step "
               "| err / err(direct) | solve [s] | of which estimators [s] | of which ILU setup [s] |",
@@ -263,9 +261,9 @@ def _ilu_table(rows, out):
                 t_ilu = sum(float(it.get("time_ilu") or 0) for it in its)
                 ratio = r["err_energy"] / base["err_energy"] if base else float("nan")
                 L.append(f"| ({ilu[0]:g}, {ilu[1]:g}){' default' if ilu == ILUS[0] else ''} | "
-                         f"{_fmt(float(np.mean(fills)) if fills else None, '{:.1f}')} | "
+                         f"{fmt(float(np.mean(fills)) if fills else None, '.1f')} | "
                          f"{mode} | {r['newton_its']} | {int(r['gmres_its'])} | {acc} | {int(r['gmres_first_step'])} | "
-                         f"{ratio:.4f} | {r['time_solve_s']:.1f} | {_fmt(r.get('time_estimate_newton_s'), '{:.1f}')} | "
+                         f"{ratio:.4f} | {r['time_solve_s']:.1f} | {fmt(r.get('time_estimate_newton_s'), '.1f')} | "
                          f"{t_ilu:.1f} |")
         L.append("")
     return L
@@ -277,7 +275,7 @@ def _tables(rows, logs, out):
     L = ["# Inexact and adaptive inexact semismooth Newton: [JSC20] disk test", "",
          "Generated by `python -m ngcontact.studies.inexact` (`make inexact-study`) from the run directories in "
          "`runs/`. Newton-min, cold start X0 = [g, 0, 0], GMRES(100) + ILU (spilu drop 1e-5, fill 8) on the reduced "
-         "SPD Newton system (`ngcontact/inexact.py` explains why and what ||R|| means), meshes: netgen unit disk "
+         "SPD Newton system (`ngcontact/newton/inexact.py` explains why and what ||R|| means), meshes: netgen unit disk "
          "with decreasing maxh. exact = GMRES to ||R||/||B|| <= 2e-12 (`--newton exact-gmres`; `direct` = sparse "
          "Cholesky, same iterates), inexact = forcing ||R^{k,i}|| <= eta_k ||R^{k,0}||, eta_k = min(||Phi||/||F||, "
          "0.5), adaptive = [JSC20] criteria (gamma_alg = gamma_lin = 0.3, nu = 10) with eta_alg from the nu-step "
@@ -306,11 +304,11 @@ def _tables(rows, logs, out):
                     ratio = r["err_energy"] / base["err_energy"] if base else float("nan")
                     L.append(f"| {ne} | {r['ndof']} | {'direct' if mode == 'exact' else mode} "
                              f"{'' if r['converged'] else '(NOT converged)'} | {r['newton_its']} | "
-                             f"{_fmt(r.get('gmres_its'), '{:.0f}')} | {acc if mode != 'exact' else '-'} | "
-                             f"{_fmt(r.get('gmres_first_step'), '{:.0f}')} | {r['err_energy']:.6e} | "
-                             f"{ratio:.4f} | {_fmt(r.get('eta_disc_final'), '{:.3e}')} | "
-                             f"{_fmt(r.get('eta_lin_final'), '{:.3e}')} | {_fmt(r.get('eta_alg_final'), '{:.3e}')} | "
-                             f"{r['time_solve_s']:.1f} | {_fmt(r.get('time_estimate_newton_s'), '{:.1f}')} |")
+                             f"{fmt(r.get('gmres_its'), '.0f')} | {acc if mode != 'exact' else '-'} | "
+                             f"{fmt(r.get('gmres_first_step'), '.0f')} | {r['err_energy']:.6e} | "
+                             f"{ratio:.4f} | {fmt(r.get('eta_disc_final'), '.3e')} | "
+                             f"{fmt(r.get('eta_lin_final'), '.3e')} | {fmt(r.get('eta_alg_final'), '.3e')} | "
+                             f"{r['time_solve_s']:.1f} | {fmt(r.get('time_estimate_newton_s'), '.1f')} |")
         L.append("")
         ad = [r for r in rows if r["order"] == order and r["newton"] == "adaptive" and r["gamma_alg"] == 0.3
               and r["gamma_lin"] == 0.3]

@@ -1,0 +1,95 @@
+"""Run directories: the output schema (key columns level, n, t), the plots hook, atomic writes."""
+import csv
+import json
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import pytest
+
+from ngcontact.cli import main
+from ngcontact.results import KEY_COLUMNS, markdown_table, read_history, write_run
+
+
+@dataclass
+class _Options:
+    order: int = 1
+    disc: str = "fem"
+    cfun: str = "min"
+    start: str = "nested"
+
+
+def _result(rows, iterations):
+    """What write_run reads of a RunResult, without a discretization (no VTK, no solution plots)."""
+    scene = SimpleNamespace(name="timed", path=None, description="rows with time steps",
+                            problem=SimpleNamespace(domain=SimpleNamespace(name="square")))
+    return SimpleNamespace(scene=scene, options=_Options(), rows=rows, iterations=iterations, discretization=None,
+                           x=None, y=None, estimate=None, converged=True, failures=[])
+
+
+def _header(path):
+    return next(csv.reader(open(path)))
+
+
+def test_time_step_rows_are_written_and_read_back_with_the_keys_first(tmp_path):
+    rows = [{"nelem": 8, "ndof": 27, "t": 0.5 * n, "err_energy": 0.1 / (n + 1), "level": 0, "n": n,
+             "newton_its": 3, "time_solve_s": 0.01, "time_linear_s": 0.005, "time_total_s": 0.02}
+            for n in (1, 2, 3)]
+    iterations = [{"k": k, "res": 10.0 ** -k, "step": 1.0, "t": r["t"], "n": r["n"], "level": 0}
+                  for r in rows for k in range(2)]
+    out = write_run(_result(rows, iterations), tmp_path / "run", vtk=False)
+    assert _header(out / "history.csv")[:4] == ["level", "n", "t", "nelem"]
+    assert _header(out / "newton.csv") == ["level", "n", "t", "k", "res", "step"]
+    back = read_history(out / "history.csv")
+    assert list(back[0])[:3] == list(KEY_COLUMNS)
+    assert [(r["level"], r["n"], r["t"]) for r in back] == [(0, 1, 0.5), (0, 2, 1.0), (0, 3, 1.5)]
+    assert all(isinstance(r["n"], int) and isinstance(r["t"], float) for r in back)
+    assert back[1]["err_energy"] == pytest.approx(0.1 / 3, rel=1e-9)
+    its = read_history(out / "newton.csv")
+    assert [(r["n"], r["k"]) for r in its] == [(1, 0), (1, 1), (2, 0), (2, 1), (3, 0), (3, 1)]
+    table = markdown_table([out])
+    assert "| level | n | t | ndof |" in table and "| T0 | 2 | 1 | 27 |" in table
+
+
+def test_stationary_run_files_have_no_time_columns(tmp_path):
+    out = tmp_path / "st"
+    assert main(["run", "test1", "--levels", "2", "--out", str(out), "-q", "--no-vtk", "--no-plots"]) == 0
+    assert _header(out / "history.csv") == [
+        "level", "nelem", "h", "ndof", "nodes", "err_energy", "rate_energy", "err_max_nodal", "newton_its",
+        "newton_converged", "res_final", "active_nodes", "linear_size", "gap_min", "lam_min", "product_max",
+        "time_mesh_s", "time_assembly_s", "time_solve_s", "time_linear_s", "time_post_s", "time_total_s",
+        "time_cum_s"]
+    assert _header(out / "newton.csv") == [
+        "level", "k", "res", "res_lin", "res_c", "n_active", "n_changed", "step", "time_linear", "time_step",
+        "linear_size", "linear_path", "pcg_its", "eps_lin", "eps_disc"]
+    assert "| level | ndof | err_energy | rate |" in markdown_table([out])
+
+
+def test_plots_hook_draws_into_the_staging_directory(tmp_path):
+    seen = []
+
+    def plots(directory, result):
+        seen.append((directory, sorted(p.name for p in directory.iterdir())))
+        (directory / "figure.png").write_bytes(b"png")
+
+    out = write_run(_result([{"level": 0, "ndof": 3}], []), tmp_path / "run", vtk=False, plots=plots)
+    (staging, present), = seen
+    assert staging != out and staging.parent == out.parent
+    assert present == ["history.csv", "newton.csv", "summary.json"]  # data first, then the figures
+    assert (out / "figure.png").read_bytes() == b"png"
+    assert json.loads((out / "summary.json").read_text())["scene"] == "timed"
+
+
+def test_failing_plots_hook_leaves_nothing_and_keeps_the_previous_run(tmp_path):
+    out = write_run(_result([{"level": 0, "ndof": 3}], []), tmp_path / "run", vtk=False)
+    before = (out / "history.csv").read_text()
+
+    def broken(directory, result):
+        raise RuntimeError("no display")
+
+    with pytest.raises(RuntimeError, match="no display"):
+        write_run(_result([{"level": 0, "ndof": 99}], []), out, vtk=False, plots=broken)
+    assert (out / "history.csv").read_text() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no staging directory left
+    with pytest.raises(TypeError, match="plots must be None or a callable"):
+        write_run(_result([{"level": 0, "ndof": 3}], []), tmp_path / "other", plots=True)
+    assert not (tmp_path / "other").exists()
