@@ -56,7 +56,7 @@ results/fem/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
 	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@
 
-## compare: issue 3 study -- FEM vs HHO (SC / no SC) vs SIPG / NIPG on [CAMWA21] tests 1, 2,
+## compare: FEM vs HHO (SC / no SC) vs SIPG / NIPG on [CAMWA21] tests 1, 2,
 ## p = 1..4, T0..T4 (nested start), plus cold-start Newton counts of FEM and HHO
 ## -> results/compare/REPORT.md.  `make -j2 compare` runs the independent runs in parallel.
 CMP_METHODS := fem hho hho-nosc sipg nipg
@@ -73,15 +73,15 @@ results/compare/runs/%: $(STAMP)
 	  --order $(subst p,,$(word 3,$(subst -, ,$*))) --start $(word 4,$(subst -, ,$*)) \
 	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels $(call cmp_levels,$*) --no-vtk --no-plots -q --out $@
 
-## inexact-study: issue 5 -- exact / inexact / adaptive inexact semismooth Newton (GMRES + ILU) on the
+## inexact-study: direct / gmres / inexact / adaptive inexact semismooth Newton (GMRES + ILU) on the
 ## [JSC20] disk test, P1 and P2, 2k..35k elements, (gamma_alg, gamma_lin) table -> results/inexact/TABLES.md
 .PHONY: inexact-study
 inexact-study: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.inexact results/inexact
 
-## sweep: issue 6 -- uniform vs adaptive (Doerfler 0.5, bisection, warm start) FEM P1..P3 on lshape, test1,
+## sweep: uniform vs adaptive (Doerfler 0.5, bisection, warm start) FEM P1..P3 on lshape, test1,
 ## disk, disk_fitted, point_load; one independent target per run (`make -j2 sweep`; each run uses one NGSolve
-## thread, so parallel runs do not distort each other's times); entries: ngcontact/report.py SWEEP.
+## thread, so parallel runs do not distort each other's times); entries: ngcontact/studies/sweep.py SWEEP.
 ## report: reads only the sweep's CSVs -> results/REPORT.md + results/report/*.png
 SWEEP_RUNS := $(foreach s,lshape test1 disk disk_fitted point_load,$(foreach m,uniform adaptive,$(foreach p,1 2 3,results/sweep/runs/$(s)-$(m)-p$(p))))
 .PHONY: sweep report
@@ -93,7 +93,7 @@ results/sweep/runs/%: $(STAMP)
 report: $(STAMP)
 	$(PY) -m ngcontact.studies.sweep report results/sweep/runs results/REPORT.md results/report
 
-## bench: issue 7 benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
+## bench: benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
 ##        -> results/bench/*.csv + results/bench/BENCH.md; estimator vs Newton time -> results/bench/ESTIMATE.md.
 ##        Not part of `make test`.
 .PHONY: bench
@@ -101,7 +101,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.bench_contact --out results/bench
 	$(PY) -m benchmarks.bench_estimate --out results/bench
 
-## estimator-study: issue 4 -- eta, error, I_eff and every estimator part per level, FEM P1/P2, cold-start
+## estimator-study: eta, error, I_eff and every estimator part per level, FEM P1/P2, cold-start
 ## Newton to convergence: test1, test2 (T0..T4), test2_fitted (5 levels), disk and disk_fitted (4 levels)
 ## -> results/estimators/TABLES.md
 EST_RUNS := $(foreach s,test1 test2 test2_fitted,$(foreach p,1 2,results/estimators/runs/$(s).p$(p).L5)) \

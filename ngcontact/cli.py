@@ -64,9 +64,8 @@ def _build_parser():
                    help="a posteriori estimators per level (fem): eta, components, I_eff, eta_K maps")
     r.add_argument("--flux-order", dest="flux_order", metavar="{p,p+1}",
                    help="with --estimate, --adaptive or --newton adaptive: RT degree of the equilibrated flux, p "
-                        "(default) or p+1 (also as a number). p+1 is often a tighter bound on coarse and adaptive meshes (L-shape P3 "
-                        "1.37 -> 1.26; adaptive L-shape P3 levels with I_eff <= 1.3: 46 -> 75 %%), not always (test1 "
-                        "P3 T1 1.21 -> 1.23), at 1.3-2x the estimation time")
+                        "(default) or p+1 (also as a number); p+1 is often a tighter bound on coarse and adaptive "
+                        "meshes, at about 1.3-2x the estimation time (README, 'A posteriori estimators')")
     r.add_argument("--decouple", action="store_true",
                    help="two membranes with mu1, mu2 constant (fem): Newton on w = u1 - u2 only, one Poisson solve for "
                         "mu1 u1 + mu2 u2 (same discrete solution; coupled Newton when the structure does not allow it)")
@@ -322,7 +321,7 @@ def _cmd_demo(args, argv) -> int:
 def _apply_thread_setting() -> None:
     """``NGCONTACT_THREADS=N``: N NGSolve threads (default: NGSolve's, all cores).  The study targets of the
     Makefile set 1, so that ``make -j2`` runs two single-threaded runs instead of oversubscribing the cores
-    with NGSolve's spinning task threads (times grew up to 10x: test1 adaptive P3 18.8 s vs 3.2 s alone)."""
+    with NGSolve's spinning task threads."""
     value = os.environ.get("NGCONTACT_THREADS")
     if value is None or value == "":
         return

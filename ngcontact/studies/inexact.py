@@ -6,14 +6,14 @@ Problem / discretisation: the disk test of [JSC20] (``cases/disk.py``), FEM P1
 and P2 on netgen meshes of the unit disk with decreasing ``maxh`` (about 2k to
 35k triangles, independent meshes as in [JSC20]), Newton-min from the cold
 start X0 = [g, 0, 0] on every mesh, GMRES(100) + ILU on the reduced Newton
-systems (:mod:`ngcontact.algebra.krylov`, :mod:`ngcontact.newton.inexact`).
+systems (:mod:`ngcontact.algebra.krylov`, :mod:`ngcontact.newton.linear`).
 
 Runs (each a normal run directory under ``OUT/runs``, written by
 :func:`ngcontact.results.write_run`, so history.csv / newton.csv / summary.json
 carry the counters):
 
-* P1, every mesh: ``exact-gmres`` (||R||/||B|| <= 2e-12), ``inexact``, ``adaptive``
-  (gamma_alg = gamma_lin = 0.3, nu = 10), plus the direct ``exact`` solve as
+* P1, every mesh: ``gmres`` (||R||/||B|| <= 2e-12), ``inexact``, ``adaptive``
+  (gamma_alg = gamma_lin = 0.3, nu = 10), plus the ``direct`` solve as
   reference for the energy error;
 * P1, finest mesh: adaptive with (gamma_alg, gamma_lin) in {0.3, 0.03}^2;
 * P2: the same three modes on the P2 meshes;
@@ -26,7 +26,7 @@ carry the counters):
 * P2 fitted, finest mesh: inexact and adaptive with two stronger ILU preconditioners
   (:data:`ILUS`; the ILU fill against the iteration counts and the run time), and the
   strongest one also on the unfitted finest P2 mesh;
-* P1 on the ~8k mesh and P2 on the coarsest mesh: exact-gmres, inexact and adaptive with the
+* P1 on the ~8k mesh and P2 on the coarsest mesh: gmres, inexact and adaptive with the
   estimators evaluated after every Newton step (``log_estimators``) for the plot "estimators
   vs Newton iteration" (those evaluations are diagnostics, not part of the run time).
 
@@ -61,7 +61,7 @@ GAMMAS = ((0.3, 0.3), (0.03, 0.3), (0.3, 0.03), (0.03, 0.03))
 #: ILU (drop_tol, fill_factor) of the study: the default (first) and the variants of the sensitivity table
 ILUS = ((1e-5, 8.0), (1e-6, 10.0), (1e-6, 15.0))
 #: modes run on the fitted P2 meshes (the accuracy check of the adaptive criteria with a sharp estimator)
-FITTED_MODES = ("exact", "inexact", "adaptive")
+FITTED_MODES = ("direct", "inexact", "adaptive")
 
 #: [JSC20] disk test, REFERENCE.md ("~": read off plots)
 PUBLISHED = {
@@ -124,9 +124,10 @@ def _load(d):
 
 
 def _log_run(out, order, maxh):
-    """exact-gmres / inexact / adaptive with the estimators after every Newton step (plot data)."""
+    """gmres / inexact / adaptive with the estimators after every Newton step (plot data)."""
     from ..discretizations.fem import FEMDiscretization
-    from ..newton.inexact import InexactOptions, inexact_semismooth_newton
+    from ..drivers.level import LevelEstimator
+    from ..newton import AdaptiveStop, KrylovSolve, NewtonOptions, semismooth_newton
 
     f = out / f"estimators_p{order}.json"
     if f.is_file():
@@ -135,9 +136,10 @@ def _log_run(out, order, maxh):
     disc = FEMDiscretization(scene.problem, next(scene.problem.domain.meshes(1)), order=order)
     x0, y0 = disc.initial_guess(scene.initial_guess)
     data = {"nelem": disc.mesh.ne, "maxh": maxh}
-    for mode in ("exact", "inexact", "adaptive"):
-        res = inexact_semismooth_newton(disc.system, x0, y0, InexactOptions(mode=mode, log_estimators=True),
-                                        disc=disc)
+    for mode in ("gmres", "inexact", "adaptive"):
+        linear = KrylovSolve(mode=mode, log_estimators=True, estimator=LevelEstimator(disc, None))
+        res = semismooth_newton(disc.system, x0, y0, NewtonOptions(), linear=linear,
+                                stop=AdaptiveStop() if mode == "adaptive" else None)
         data[mode] = [{"k": r.k, "eta_disc": r.eta_disc, "eta_lin": r.eta_lin, "eta_alg": r.eta_alg,
                        "gmres_cum": r.gmres_cum, "res": r.res} for r in res.history[1:]]
         data[mode + "_estimates"] = [vars(e) for e in res.estimates]
@@ -152,7 +154,7 @@ def _plot_estimators(data, png, title):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
-    for ax, mode in zip(axes, ("exact", "inexact", "adaptive")):
+    for ax, mode in zip(axes, ("gmres", "inexact", "adaptive")):
         rows = data[mode]
         k = [r["k"] for r in rows]
         for key, style in (("eta_disc", "o-"), ("eta_lin", "s-"), ("eta_alg", "^-")):
@@ -178,7 +180,7 @@ def _plot_vs_mesh(rows, png):
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for order, marker in ((1, "o"), (2, "s")):
-        for mode, color in (("exact-gmres", "C0"), ("inexact", "C1"), ("adaptive", "C2")):
+        for mode, color in (("gmres", "C0"), ("inexact", "C1"), ("adaptive", "C2")):
             rr = sorted((r for r in rows if r["order"] == order and r["newton"] == mode
                          and r["gamma_alg"] == 0.3 and r["gamma_lin"] == 0.3), key=lambda r: r["nelem"])
             if not rr:
@@ -232,7 +234,7 @@ def _ilu_table(rows, out):
             continue
         ne = max(r["nelem"] for r in sel if r["ilu"] != ILUS[0])
         sel = [r for r in sel if r["nelem"] == ne]
-        base = next((b for b in rows if b["order"] == order and b["nelem"] == ne and b["newton"] == "exact"), None)
+        base = next((b for b in rows if b["order"] == order and b["nelem"] == ne and b["newton"] == "direct"), None)
         full = float("nan")
         if order == "2f":
             f = out / "complete_lu_fill.json"
@@ -275,8 +277,8 @@ def _tables(rows, logs, out):
     L = ["# Inexact and adaptive inexact semismooth Newton: [JSC20] disk test", "",
          "Generated by `python -m ngcontact.studies.inexact` (`make inexact-study`) from the run directories in "
          "`runs/`. Newton-min, cold start X0 = [g, 0, 0], GMRES(100) + ILU (spilu drop 1e-5, fill 8) on the reduced "
-         "SPD Newton system (`ngcontact/newton/inexact.py` explains why and what ||R|| means), meshes: netgen unit disk "
-         "with decreasing maxh. exact = GMRES to ||R||/||B|| <= 2e-12 (`--newton exact-gmres`; `direct` = sparse "
+         "SPD Newton system (`ngcontact/newton/linear.py` explains why and what ||R|| means), meshes: netgen unit disk "
+         "with decreasing maxh. exact = GMRES to ||R||/||B|| <= 2e-12 (`--newton gmres`; `direct` = sparse "
          "Cholesky, same iterates), inexact = forcing ||R^{k,i}|| <= eta_k ||R^{k,0}||, eta_k = min(||Phi||/||F||, "
          "0.5), adaptive = [JSC20] criteria (gamma_alg = gamma_lin = 0.3, nu = 10) with eta_alg from the nu-step "
          "algebraic flux (`ngcontact/estimators/algebraic.py`). GMRES counts are all iterations performed "
@@ -293,18 +295,18 @@ def _tables(rows, logs, out):
               "| err / err(direct) | eta_disc | eta_lin | eta_alg | solve [s] | of which estimators [s] |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for ne in meshes:
-            base = next((r for r in rows if r["order"] == order and r["nelem"] == ne and r["newton"] == "exact"),
+            base = next((r for r in rows if r["order"] == order and r["nelem"] == ne and r["newton"] == "direct"),
                         None)
-            for mode in ("exact", "exact-gmres", "inexact", "adaptive"):
+            for mode in ("direct", "gmres", "inexact", "adaptive"):
                 for r in rows:
                     if not (r["order"] == order and r["nelem"] == ne and r["newton"] == mode
                             and r["gamma_alg"] == 0.3 and r["gamma_lin"] == 0.3):
                         continue
                     acc = sum(int(it.get("gmres_accepted") or 0) for it in r["iterations"])
                     ratio = r["err_energy"] / base["err_energy"] if base else float("nan")
-                    L.append(f"| {ne} | {r['ndof']} | {'direct' if mode == 'exact' else mode} "
+                    L.append(f"| {ne} | {r['ndof']} | {mode} "
                              f"{'' if r['converged'] else '(NOT converged)'} | {r['newton_its']} | "
-                             f"{fmt(r.get('gmres_its'), '.0f')} | {acc if mode != 'exact' else '-'} | "
+                             f"{fmt(r.get('gmres_its'), '.0f')} | {acc if mode != 'direct' else '-'} | "
                              f"{fmt(r.get('gmres_first_step'), '.0f')} | {r['err_energy']:.6e} | "
                              f"{ratio:.4f} | {fmt(r.get('eta_disc_final'), '.3e')} | "
                              f"{fmt(r.get('eta_lin_final'), '.3e')} | {fmt(r.get('eta_alg_final'), '.3e')} | "
@@ -313,7 +315,7 @@ def _tables(rows, logs, out):
         ad = [r for r in rows if r["order"] == order and r["newton"] == "adaptive" and r["gamma_alg"] == 0.3
               and r["gamma_lin"] == 0.3]
         worst = max((abs(r["err_energy"] / next(b for b in rows if b["order"] == order and b["nelem"] == r["nelem"]
-                                                  and b["newton"] == "exact")["err_energy"] - 1) for r in ad),
+                                                  and b["newton"] == "direct")["err_energy"] - 1) for r in ad),
                     default=float("nan"))
         L += [f"Adaptive vs direct energy error, {'P2 fitted' if order == '2f' else f'P{order}'}: largest "
               "relative difference over the meshes "
@@ -325,7 +327,7 @@ def _tables(rows, logs, out):
         L += [f"## (gamma_alg, gamma_lin) sensitivity, P{order}, {ne} elements", "",
               "| (gamma_alg, gamma_lin) | Newton | GMRES total | GMRES accepted | energy error | err / err(direct) "
               "| [JSC20] Newton / GMRES (35k) |", "|---|---|---|---|---|---|---|"]
-        base = next((b for b in rows if b["order"] == order and b["nelem"] == ne and b["newton"] == "exact"), None)
+        base = next((b for b in rows if b["order"] == order and b["nelem"] == ne and b["newton"] == "direct"), None)
         for ga, gl in GAMMAS:
             for r in g:
                 if r["nelem"] == ne and r["gamma_alg"] == ga and r["gamma_lin"] == gl:
@@ -357,18 +359,18 @@ def _tables(rows, logs, out):
         return f" ({ne} elements" + ("; no run near the published mesh size" if far else "") + ")"
 
     def triple(order, target, key):
-        rr = [pick(order, target, m) for m in ("exact-gmres", "inexact", "adaptive")]
+        rr = [pick(order, target, m) for m in ("gmres", "inexact", "adaptive")]
         return " / ".join("-" if r is None else str(int(r[key])) for r in rr) + note(order, target)
 
     L.append(f"| P1 Newton exact / inexact / adaptive, ~8k | 15 / 46 / 14 | {triple(1, 8000, 'newton_its')} |")
     L.append(f"| P1 total GMRES exact / inexact / adaptive, ~35k | 3000 / 1660 / 670 | "
              f"{triple(1, 35000, 'gmres_its')} |")
-    a, b = pick(1, 8000, "exact-gmres"), pick(1, 8000, "adaptive")
+    a, b = pick(1, 8000, "gmres"), pick(1, 8000, "adaptive")
     L.append("| P1 GMRES of the 1st Newton step, exact / adaptive | 220 / 10 | "
              + ("-" if a is None else str(int(a["gmres_first_step"]))) + " / "
              + ("-" if b is None else f"{int(b['gmres_first_step'])} (accepted iterate i = "
                 f"{int(b['iterations'][1]['gmres_accepted'])})") + note(1, 8000) + " |")
-    for mode, pub in (("exact-gmres", "~8, 12, 15, 19, 22, 25, 28"), ("adaptive", "~8, 11, 14, 18, 21, 23, 27")):
+    for mode, pub in (("gmres", "~8, 12, 15, 19, 22, 25, 28"), ("adaptive", "~8, 11, 14, 18, 21, 23, 27")):
         rr = sorted((r for r in rows if r["order"] == 1 and r["newton"] == mode and r["gamma_alg"] == 0.3
                      and r["gamma_lin"] == 0.3), key=lambda r: r["nelem"])
         L.append(f"| P1 Newton vs mesh, {mode} (2k...35k) | {pub} | "
@@ -378,7 +380,7 @@ def _tables(rows, logs, out):
     L.append(f"| P2 total GMRES exact / inexact / adaptive, ~27k | 21000 / 7300 / 540 | "
              f"{triple(2, 27000, 'gmres_its')} |")
     L.append(f"| P2 fitted mesh, Newton exact / inexact / adaptive, ~27k | 29 / 116 / 22 | "
-             f"{triple('2f', 27000, 'newton_its')} (exact-gmres not run) |")
+             f"{triple('2f', 27000, 'newton_its')} (gmres not run) |")
     L.append(f"| P2 fitted mesh, total GMRES exact / inexact / adaptive, ~27k | 21000 / 7300 / 540 | "
              f"{triple('2f', 27000, 'gmres_its')} |")
     L.append("")
@@ -388,7 +390,7 @@ def _tables(rows, logs, out):
             L += [f"Estimator evaluations of the adaptive run, P{order}, {data['nelem']} elements: {len(ev)} "
                   f"(plot: `estimators_p{order}.png`).", ""]
     expected = [f"p{o}-h{h:g}-{m}" for o, hs in ((1, P1_MAXH), (2, P2_MAXH)) for h in hs
-                for m in ("exact", "exact-gmres", "inexact", "adaptive")]
+                for m in ("direct", "gmres", "inexact", "adaptive")]
     expected += [f"p1-h{P1_MAXH[-1]:g}-adaptive-g{ga:g}-{gl:g}" for ga, gl in GAMMAS[1:]]
     expected += [f"p2f-h{h:g}-{m}" for h in P2_MAXH for m in FITTED_MODES]
     expected += [f"p2f-h{P2_MAXH[-1]:g}-{m}-{_ilu_tag(ilu)}" for ilu in ILUS[1:] for m in ("inexact", "adaptive")]
@@ -425,7 +427,7 @@ def main(argv=None) -> int:
         if args.p2_only:
             p1 = ()
         for h in p1:
-            for mode in ("exact", "exact-gmres", "inexact", "adaptive"):
+            for mode in ("direct", "gmres", "inexact", "adaptive"):
                 dirs.append(_run(out, 1, h, mode))
         for ga, gl in GAMMAS[1:] if p1 else ():
             dirs.append(_run(out, 1, p1[-1], "adaptive", ga, gl, tag=f"p1-h{p1[-1]:g}-adaptive-g{ga:g}-{gl:g}"))
@@ -434,7 +436,7 @@ def main(argv=None) -> int:
         if p2 and not args.p1_only:
             logs[2] = _log_run(out, 2, p2[0])
         for h in p2 if not args.p1_only else ():
-            for mode in ("exact", "exact-gmres", "inexact", "adaptive"):
+            for mode in ("direct", "gmres", "inexact", "adaptive"):
                 dirs.append(_run(out, 2, h, mode))
         for h in p2 if not args.p1_only else ():
             for mode in FITTED_MODES:
@@ -460,7 +462,7 @@ def main(argv=None) -> int:
         w = csv.writer(fh)
         w.writerow(["order", "nelem", "mode", "k", "i", "eta_disc", "eta_lin", "eta_alg", "res_alg", "stop_linear"])
         for order, data in logs.items():
-            for mode in ("exact", "inexact", "adaptive"):
+            for mode in ("gmres", "inexact", "adaptive"):
                 for e in data.get(mode + "_estimates", []):
                     w.writerow([order, data["nelem"], mode, e["k"], e["i"], e["eta_disc"], e["eta_lin"],
                                 e["eta_alg"], e["res_alg"], int(e["stop_linear"])])
