@@ -103,7 +103,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
         discretization, solution and estimate; ``result.stop_reason`` says
         why the loop ended.
     """
-    from ..estimators import estimate
+    from ..estimators import EstimatorOptions, estimate
     from .uniform import RunResult, balance_columns
 
     say = progress or (lambda msg: None)
@@ -141,9 +141,8 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
         errs = disc.errors(sol.x, sol.y)
         comp = disc.complementarity(sol.x, sol.y)
         t4 = time.perf_counter()
-        est = estimate(disc, sol.x, sol.y, errors=False, flux_order=options.flux_order)
-        if "err_energy" in errs:
-            est.err_energy = errs["err_energy"]
+        est = estimate(disc, sol.x, sol.y, EstimatorOptions(flux_order=options.flux_order),
+                       err_energy=errs.get("err_energy"), errors=False)
         est_cols = est.summary()
         t5 = time.perf_counter()
         row = {

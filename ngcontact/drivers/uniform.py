@@ -224,11 +224,10 @@ def run_scene(scene, options: RunOptions, progress: Optional[Callable[[str], Non
         t3 = time.perf_counter()
         est, est_cols = None, {}
         if options.estimate:
-            from ..estimators import estimate
+            from ..estimators import EstimatorOptions, estimate
 
-            est = estimate(disc, sol.x, sol.y, errors=False, flux_order=options.flux_order)
-            if "err_energy" in errs:
-                est.err_energy = errs["err_energy"]
+            est = estimate(disc, sol.x, sol.y, EstimatorOptions(flux_order=options.flux_order),
+                           err_energy=errs.get("err_energy"), errors=False)
             est_cols = est.summary()
             result.estimate = est
         t4 = time.perf_counter()

@@ -226,9 +226,10 @@ def _alg_terms(comp):
 
 
 def _components(disc, x, y, r_alg, sigma_alg, flux_order):
-    from ..estimators.components import estimate_components
+    from ..estimators import EstimatorOptions, estimate_components
 
-    return estimate_components(disc, x, y, r_alg=r_alg, sigma_alg=sigma_alg, flux_order=flux_order)
+    return estimate_components(disc, x, y, r_alg=r_alg, sigma_alg=sigma_alg,
+                               options=EstimatorOptions(flux_order=flux_order))
 
 
 def inexact_semismooth_newton(
@@ -273,8 +274,6 @@ def inexact_semismooth_newton(
     line_search = opt.line_search if opt.line_search is not None else cf.name == "fb"
     scale = max(np.linalg.norm(system.F), np.finfo(float).tiny)
     x, y = np.array(x0, dtype=float), np.array(y0, dtype=float)
-    p = getattr(disc, "order", 1)
-    alg_q = opt.alg_flux_order if opt.alg_flux_order is not None else max(p - 1, 0)
 
     def merit(x, y):
         r = system.residual(x, y)
@@ -282,9 +281,9 @@ def inexact_semismooth_newton(
         return r, c, 0.5 * (r @ r + c @ c)
 
     def sigma_alg_of(dx):
-        from ..estimators.algebraic import algebraic_flux
+        from ..estimators import EstimatorOptions, algebraic_flux
 
-        return algebraic_flux(disc, dx, order=alg_q)
+        return algebraic_flux(disc, dx, EstimatorOptions(alg_flux_order=opt.alg_flux_order))
 
     t_start = time.perf_counter()
     r, c, psi = merit(x, y)
