@@ -15,7 +15,7 @@ The public entry points take ``(disc, x, y)`` and build the views here, once per
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
 import numpy as np
@@ -122,8 +122,8 @@ class DiscretizationView:
     interior: np.ndarray
     D: np.ndarray
     system: object
-    cache: dict
-    _disc: object
+    cache: dict = field(repr=False)
+    _disc: object = field(repr=False)
 
     @classmethod
     def of(cls, disc) -> "DiscretizationView":
