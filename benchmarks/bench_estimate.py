@@ -17,7 +17,7 @@ import sys
 import time
 
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.estimators import estimate, estimate_components
+from ngcontact.estimators import EstimatorOptions, estimate, estimate_components
 from ngcontact.newton import NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
 
@@ -40,10 +40,10 @@ def run(scene_name, p, level):
     for label, fn in [("estimate", lambda: estimate(disc, cold.x, cold.y, errors=False)),
                       ("estimate again", lambda: estimate(disc, cold.x, cold.y, errors=False)),
                       ("estimate 3rd call", lambda: estimate(disc, cold.x, cold.y, errors=False)),
-                      ("estimate fast", lambda: estimate(disc, cold.x, cold.y, errors=False,
-                                                         dirichlet_correction="fast")),
-                      ("estimate no-bc", lambda: estimate(disc, cold.x, cold.y, errors=False,
-                                                          dirichlet_correction=False)),
+                      ("estimate fast", lambda: estimate(disc, cold.x, cold.y,
+                                                         EstimatorOptions(dirichlet_correction="fast"), errors=False)),
+                      ("estimate no-bc", lambda: estimate(disc, cold.x, cold.y,
+                                                          EstimatorOptions(dirichlet_correction=False), errors=False)),
                       ("components", lambda: estimate_components(disc, cold.x, cold.y))]:
         t0 = time.perf_counter()
         fn()

@@ -23,6 +23,7 @@ from typing import Optional
 
 from .algebra.linalg import SOLVERS
 from .discretizations import DISCRETIZATIONS
+from .estimators import EstimatorOptions
 from .marking import check_marking
 from .newton import DirectSolve, KrylovSolve, NewtonOptions, StopOptions
 from .newton.base import option_error
@@ -130,9 +131,6 @@ class RunOptions:
         if self.decouple and (self.newton != "direct" or self.adaptive):
             raise ValueError("option decouple needs the direct Newton solves of uniform runs (newton 'direct', "
                              "not adaptive)")
-        if self.flux_order is not None and (isinstance(self.flux_order, bool) or not isinstance(self.flux_order, int)
-                                            or self.flux_order not in (self.order, self.order + 1)):
-            bad("flux_order", f"{self.order} or {self.order + 1} (the order p or p + 1), or None")
         # the option groups: each validates its own fields
         set_ = object.__setattr__
         set_(self, "newton_options", NewtonOptions(cfun=self.cfun, tol=self.tol, maxit=self.maxit))
@@ -142,6 +140,9 @@ class RunOptions:
         set_(self, "linear", DirectSolve() if self.newton == "direct" else krylov)
         set_(self, "stop_options", StopOptions(newton_stop="adaptive" if self.newton == "adaptive" else self.newton_stop,
                                                gamma_balance=self.gamma_balance, gamma_lin=self.gamma_lin))
+        estimator_options = EstimatorOptions(flux_order=self.flux_order)
+        estimator_options.flux_degree(self.order)  # the flux_order rule that depends on p
+        set_(self, "estimator_options", estimator_options)
         set_(self, "adaptive_options", AdaptiveOptions(self.marking, self.theta, self.max_ndof, self.target_eta,
                                                        self.max_time, self.max_levels))
 

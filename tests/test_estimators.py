@@ -3,15 +3,19 @@
 Structural checks (equilibration, normal continuity), the guaranteed bound
 I_eff >= 1 on every level, effectivity on the finer levels, eta = 0 when the
 discrete space contains the exact solution, and the estimator converging at
-the error's rate.  Known failures are xfail with the measured values.
+the error's rate; the multipliers, the Dirichlet lifting and the options of the
+estimate.  Known failures are xfail with the measured values.  The error
+components of an iterate (eta_disc, eta_lin, eta_alg): tests/test_components.py.
 """
+import numpy as np
 import pytest
 from ngsolve import Integrate, dx, x, y
 
 from ngcontact import CrissCrossSquare, ExactSolution, TwoMembraneProblem
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.estimators import (complementarity_report, equilibration_defect, estimate, normal_jump,
-                                  reconstruct_fluxes)
+from ngcontact.estimators import EstimatorOptions, complementarity_report, equilibration_defect, estimate, normal_jump
+from ngcontact.estimators.flux import reconstruct
+from ngcontact.estimators.view import DiscretizationView, SolutionView
 from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.rates import fitted_rate
 from ngcontact.scenes import load_scene
@@ -195,7 +199,7 @@ def test_flux_order_and_signs():
     prob = scene.problem
     disc = FEMDiscretization(prob, prob.domain.mesh(1), order=1)
     sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
-    flux0 = reconstruct_fluxes(disc, sol.x, sol.y, order=0)
+    flux0 = reconstruct(SolutionView.of(disc, sol.x, sol.y), 0)
     assert max(v["max_K"] for v in equilibration_defect(disc, flux0).values()) <= 1e-10
     assert [fd.sign for fd in flux0.fields] == [1, -1]
     e0 = estimate(disc, sol.x, sol.y, flux=flux0)
@@ -248,99 +252,7 @@ def test_estimation_time_vs_newton_at_1e5_dofs():
     assert est.time_total <= 2.0 * t_newton, (est.time_total, t_newton)
 
 
-# ------------------------------------------------------------------ error components (seed Corollary)
-import warnings  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-from ngcontact.estimators import (Components, FieldData, FluxReconstruction, estimate_components,  # noqa: E402
-                                  newton_history, newton_iterates, plot_components_history)
-
-
-def _solved(scene_name, p, level):
-    scene = load_scene(scene_name)
-    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(level), order=p)
-    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
-    assert sol.converged
-    return scene, disc, sol
-
-
-@pytest.mark.parametrize("scene,p,level", [("disk", 1, 0), ("disk", 2, 0), ("test1", 1, 1), ("test2", 2, 0)])
-def test_components_at_convergence(scene, p, level):
-    """Exact Newton, converged: eta_lin ~ 0, eta_alg = 0 and eta_disc = eta of estimate() with the same
-    multiplier (the default estimate() is at most that)."""
-    from ngcontact.estimators.flux import vertex_device_exact
-
-    _, disc, sol = _solved(scene, p, level)
-    comp = estimate_components(disc, sol.x, sol.y, errors=True)
-    # the components use one multiplier (patch constants, or the fit where the vertex device is not
-    # exact); estimate() by default also tries the shaped one and may be smaller
-    mult = None if p == 1 else ("contact" if vertex_device_exact(disc, p) else "fit")
-    est = estimate(disc, sol.x, sol.y, multiplier=mult)
-    assert estimate(disc, sol.x, sol.y).eta <= est.eta * (1 + 1e-12)
-    assert isinstance(comp, Components)
-    assert comp.eta_alg == 0.0
-    assert comp.eta_lin <= 1e-6 * comp.eta_disc, comp.eta_lin
-    assert abs(comp.eta_disc - est.eta) <= 1e-10 * est.eta, (comp.eta_disc, est.eta)
-    assert comp.eta >= comp.err_energy
-    assert comp.eta_K.shape == (disc.mesh.ne,) and np.all(comp.eta_K >= 0)
-
-
-def test_components_along_newton_iterations(tmp_path):
-    """[JSC20] figures: every Newton-min iterate from X0 = [g, 0, 0] is bounded by eta = disc + lin + alg;
-    X0 does not solve E X = F (eta_alg > 0), intermediate iterates violate the constraints
-    (eta_lin > 0), the last one is converged (eta_lin ~ 0, eta_alg = 0)."""
-    scene = load_scene("disk")
-    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=1)
-    its = list(newton_iterates(disc, *disc.initial_guess(scene.initial_guess)))
-    assert len(its) >= 4
-    rows = newton_history(disc, its)
-    for r in rows:
-        assert r["eta_total"] >= r["err_energy"], r
-        assert abs(r["eta_total"] - (r["eta_disc"] + r["eta_lin"] + r["eta_alg"])) <= 1e-14 * r["eta_total"]
-    assert rows[0]["eta_alg"] > rows[0]["eta_disc"]
-    assert max(r["eta_lin"] for r in rows[1:-1]) > rows[-1]["eta_disc"]
-    assert rows[-1]["eta_lin"] <= 1e-6 * rows[-1]["eta_disc"] and rows[-1]["eta_alg"] == 0.0
-    plot_components_history(rows, tmp_path / "hist.png")
-    assert (tmp_path / "hist.png").stat().st_size > 1000
-
-
-@pytest.mark.parametrize("scene,p", [("disk", 1), ("test2", 2)])
-def test_components_inexact_solve(scene, p):
-    """A perturbed solution with its algebraic residual: guaranteed bound, sigma_disc equilibrated with
-    f - (-1)^a lam_h - r_ah, eta_alg proportional to the residual, any sigma_alg accepted.
-    (p = 2 on straight elements: on curved ones the vertex-moment device of :mod:`.flux` is exact
-    only up to the curvature, equilibration ~1e-5 where r^ is nonzero at the boundary; the bound
-    stays guaranteed since eta_R and eta_quad use the actual div sigma.)"""
-    from ngcontact.estimators import equilibration_defect
-    from ngsolve import HDiv, GridFunction
-
-    _, disc, sol = _solved(scene, p, 0)
-    rng = np.random.default_rng(1)
-    noise = rng.standard_normal(len(sol.x)) * np.abs(sol.x).max()
-    etas = []
-    for eps in (1e-4, 1e-6):
-        xk = sol.x + eps * noise
-        r = np.concatenate([-disc.system.residual(xk, sol.y), np.zeros(len(sol.y))])
-        comp = estimate_components(disc, xk, sol.y, r_alg=r, errors=True)
-        assert comp.eta >= comp.err_energy and comp.res_alg > 0
-        etas.append(comp.eta_alg)
-        for i, fd in enumerate(comp.sigma_disc):
-            f = disc.problem.f1 if i == 0 else disc.problem.f2
-            fl = FluxReconstruction(sigma=[fd], fields=[FieldData("u", 1.0, f, +1, None)], lam=comp.data[i],
-                                    order=p, space=fd.space)
-            assert equilibration_defect(disc, fl)["u"]["max_K"] <= 1e-10
-    assert 50 <= etas[0] / etas[1] <= 200, etas
-    zero = GridFunction(HDiv(disc.mesh, order=1, RT=True))
-    comp0 = estimate_components(disc, xk, sol.y, r_alg=r, sigma_alg=[zero, zero], errors=True)
-    assert comp0.eta_alg > 0 and comp0.eta >= comp0.err_energy
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        estimate_components(disc, xk, sol.y, r_alg=np.ones(len(r)))
-    assert any("differs" in str(m.message) for m in w)
-
-
-def test_contact_multiplier_moments_and_support():
+def test_contact_multiplier_moments_and_support(solve_one):
     """ContactMultiplier (p >= 2): (lam^, psi_a) equals the hat moment of the discrete multiplier at every
     interior vertex (patch compatibility, to round-off), and on the mesh fitted to the contact boundary
     (level 1) lam^ ~ lam = 2g inside r < 1/sqrt 2 (within 10 %) and ~0 outside (within 1 % of 2g), where
@@ -348,14 +260,17 @@ def test_contact_multiplier_moments_and_support():
     from ngsolve import H1, VOL, CoefficientFunction, Integrate, IntegrationRule, LinearForm, dx as ngdx
 
     from ngcontact.domains import DIRICHLET
-    from ngcontact.estimators.flux import ContactMultiplier, data_rules, multiplier_p1
+    from ngcontact.estimators.moments import data_rules
+    from ngcontact.estimators.multipliers import ContactMultiplier, multiplier_p1
 
-    _, disc, sol = _solved("disk_fitted", 2, 1)
-    gfs = disc.gridfunctions(sol.x, sol.y)
-    lam = ContactMultiplier(disc, sol.y)(disc.D * sol.y)
+    scene = load_scene("disk_fitted")
+    disc, sol = solve_one(scene.problem, 1, 2, init=scene.initial_guess)
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    gfs = sv.gfs
+    lam = ContactMultiplier(sv.disc, sol.y)(disc.D * sol.y)
     V = H1(disc.mesh, order=1, dirichlet=DIRICHLET)
     v = V.TestFunction()
-    rule = data_rules(disc)["mass"]
+    rule = data_rules(sv.disc)["mass"]
     got = LinearForm(lam * v * ngdx(intrules=rule)).Assemble().vec.FV().NumPy()
     want = LinearForm(gfs["lam"] * v * ngdx(intrules=rule)).Assemble().vec.FV().NumPy()
     free = np.array(list(V.FreeDofs()), dtype=bool)
@@ -365,7 +280,7 @@ def test_contact_multiplier_moments_and_support():
     ir = IntegrationRule(points=[(0, 0), (1, 0), (0, 1), (1 / 3, 1 / 3)], weights=[0.0] * 4)
     r = np.sqrt(np.asarray((CoefficientFunction((x * x + y * y)))(mesh.MapToAllElements(ir, VOL)))).reshape(mesh.ne, 4)[:, 3]
     rho, g = 1 / np.sqrt(2), 0.05
-    for name, cf in (("contact", lam), ("p1", multiplier_p1(disc, gfs))):
+    for name, cf in (("contact", lam), ("p1", multiplier_p1(sv))):
         vals = np.asarray(cf(mesh.MapToAllElements(ir, VOL))).reshape(mesh.ne, 4)[:, :3]
         err_in = np.abs(vals[r < rho] - 2 * g).max()
         err_out = np.abs(vals[r > rho]).max()
@@ -376,22 +291,24 @@ def test_contact_multiplier_moments_and_support():
     assert Integrate(lam * lam * ngdx, mesh) > 0
 
 
-def test_patch_contact_multiplier():
+def test_patch_contact_multiplier(solve_one):
     """PatchContactMultiplier (p >= 2, q <= 2): patch compatibility sum_K g_a|_K (psi_a, 1)_K = m_a at every
     vertex, lam^ >= 0, zero on the elements outside the contact set of the fitted disk, ~2g inside."""
     from ngsolve import VOL, CoefficientFunction, IntegrationRule
 
-    from ngcontact.estimators.flux import PatchContactMultiplier, disc_cache, vertex_moments
-    from ngcontact.estimators.flux import _element_vertices
+    from ngcontact.estimators.moments import vertex_moments
+    from ngcontact.estimators.multipliers import PatchContactMultiplier
 
-    _, disc, sol = _solved("disk_fitted", 2, 1)
-    pm = PatchContactMultiplier(disc, sol.y)
+    scene = load_scene("disk_fitted")
+    disc, sol = solve_one(scene.problem, 1, 2, init=scene.initial_guess)
+    dv = DiscretizationView.of(disc)
+    pm = PatchContactMultiplier(dv, sol.y)
     lam = pm(disc.D * sol.y)
     vals = lam.vec.FV().NumPy().reshape(disc.mesh.ne, 3)  # vertex values per element
-    Psi, vol, _ = vertex_moments(disc)
+    Psi, vol, _ = vertex_moments(dv)
     m = Psi.T @ (disc.D * sol.y)
-    ev = _element_vertices(disc)
-    moments = np.bincount(ev.ravel(), weights=(vals * disc_cache(disc)["vol_ka"]).ravel(), minlength=disc.mesh.nv)
+    ev = dv.element_vertices()
+    moments = np.bincount(ev.ravel(), weights=(vals * dv.cache["vol_ka"]).ravel(), minlength=disc.mesh.nv)
     assert np.abs(moments - m).max() <= 1e-12 * np.abs(m).max()
     assert vals.min() >= 0.0
     mesh = disc.mesh
@@ -453,17 +370,16 @@ def test_dirichlet_lifting_in_a_boundary_strip():
     with enough layers to cover the mesh it is the global discrete harmonic lifting.  A thin strip (one
     layer) gives a larger but still guaranteed estimate (test 1, P1, level 3: the lifting of the one-signed P1
     trace error decays slowly; 8 layers: 1.118 vs 1.109 global on level 5)."""
-    from ngcontact.estimators import estimators as E
-    from ngcontact.estimators.flux import field_data
+    from ngcontact.estimators import dirichlet as E
 
     scene = load_scene("test1")
     mesh = list(scene.problem.domain.meshes(4))[-1]
     disc = FEMDiscretization(scene.problem, mesh, order=1)
     sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
-    fields = field_data(disc, disc.gridfunctions(sol.x, sol.y))
-    thin = E._dirichlet_correction(disc, fields, 3, 3, layers=1)
-    full = E._dirichlet_correction(disc, fields, 3, 3, layers=10 ** 6)
-    strip, _ = E._boundary_strip(disc, 1)
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    thin = E.dirichlet_correction(sv.disc, sv.fields, 3, 3, layers=1)
+    full = E.dirichlet_correction(sv.disc, sv.fields, 3, 3, layers=10 ** 6)
+    strip, _ = E.boundary_strip(sv.disc, 1)
     w_off = Integrate(thin[0][0] ** 2 * dx, mesh, element_wise=True).NumPy()[~strip]
     assert strip.any() and (~strip).any() and np.abs(w_off).max() == 0.0
     assert thin[1] >= full[1] > 0.0  # |||w_h||| of the global discrete harmonic lifting is the smallest
@@ -479,16 +395,17 @@ def test_dirichlet_lifting_in_a_boundary_strip():
 def test_contact_fit_reweighting_removes_negative_lobes():
     """L-shape P3 (continuous free boundary): the reweighted contact fit of lam^ has no negative part left
     (eta_nonc,2 at round-off) and a smaller estimate than the plain fit (measured I_eff 1.464 -> 1.387)."""
-    from ngcontact.estimators import flux as FL
+    from ngcontact.estimators import multipliers as FL
 
     scene = load_scene("lshape")
     disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=3)
     sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
-    est = estimate(disc, sol.x, sol.y, multiplier="fit")
+    fit = EstimatorOptions(multiplier="fit")
+    est = estimate(disc, sol.x, sol.y, fit)
     old = FL.ContactMultiplier.ROUNDS
     try:
         FL.ContactMultiplier.ROUNDS = 0
-        plain = estimate(disc, sol.x, sol.y, multiplier="fit")
+        plain = estimate(disc, sol.x, sol.y, fit)
     finally:
         FL.ContactMultiplier.ROUNDS = old
     assert plain.eta_nonc2 > 1e-3 * plain.eta
@@ -505,8 +422,8 @@ def test_default_multiplier_is_the_smaller_of_fit_and_shape(scene, p, level, exp
     disc = FEMDiscretization(sc.problem, list(sc.problem.domain.meshes(level + 1))[level], order=p)
     sol = semismooth_newton(disc.system, *disc.initial_guess(sc.initial_guess), NewtonOptions())
     est = estimate(disc, sol.x, sol.y)
-    fit = estimate(disc, sol.x, sol.y, multiplier="fit")
-    shape = estimate(disc, sol.x, sol.y, multiplier="shape")
+    fit = estimate(disc, sol.x, sol.y, EstimatorOptions(multiplier="fit"))
+    shape = estimate(disc, sol.x, sol.y, EstimatorOptions(multiplier="shape"))
     assert est.eta == pytest.approx(min(fit.eta, shape.eta), rel=1e-10)  # first call: solves, later: kept inverses
     assert est.multiplier == ("fit" if fit.eta <= shape.eta else "shape")
     assert shape.eta_nonc2 == 0.0
@@ -518,8 +435,6 @@ def test_default_multiplier_is_the_smaller_of_fit_and_shape(scene, p, level, exp
 def test_marking_indicators_carry_the_nonconformity():
     """eta_K (the marking indicators) holds the element parts of eta_nonc,1^2 as well as those of the flux,
     residual, contact, Dirichlet and multiplier terms: on the disk P2 (eta_nonc,1 > 0 on every level)."""
-    import numpy as np
-
     for row in study("disk", 2):
         est = row["est"]
         assert est.eta_nonc1 > 0.0
@@ -527,3 +442,39 @@ def test_marking_indicators_carry_the_nonconformity():
         assert abs(est.nonc1_K.sum() - est.eta_nonc1 ** 2) <= 1e-10 * est.eta_nonc1 ** 2
         base = ((est.eta_F + est.eta_R) ** 2).sum() + np.maximum(est.eta_C, 0.0).sum()
         assert (est.eta_K ** 2).sum() >= base + 0.999 * est.eta_nonc1 ** 2
+
+
+def test_estimator_options_are_validated_once():
+    """Bad option values are refused when the options are made, naming the field and the value; the RT
+    degrees are resolved from p in one method each."""
+    for kw, what in [(dict(flux_order=-1), "flux_order.*-1"), (dict(flux_order=True), "flux_order.*True"),
+                     (dict(alg_flux_order=1.5), "alg_flux_order.*1.5"), (dict(multiplier="lumped"), "multiplier.*lumped"),
+                     (dict(dirichlet_correction="slow"), "dirichlet_correction.*slow"),
+                     (dict(friedrichs=0.0), "friedrichs.*0.0"), (dict(batched=1), "batched.*1"),
+                     (dict(concentrate="yes"), "concentrate.*yes"), (dict(res_tol=-1.0), "res_tol.*-1.0")]:
+        with pytest.raises(ValueError, match="option " + what):
+            EstimatorOptions(**kw)
+    assert [EstimatorOptions().flux_degree(p) for p in (1, 2, 3)] == [1, 2, 3]
+    assert EstimatorOptions(flux_order=3).flux_degree(2) == 3
+    with pytest.raises(ValueError, match="flux_order must be p = 2 or p \\+ 1 = 3.*got 4"):
+        EstimatorOptions(flux_order=4).flux_degree(2)
+    assert [EstimatorOptions().alg_flux_degree(p) for p in (1, 2, 3)] == [0, 1, 2]
+    assert EstimatorOptions(alg_flux_order=2).alg_flux_degree(1) == 2
+
+
+def test_energy_error_from_the_caller():
+    """estimate(..., err_energy=e) reports e and i_eff = eta / e; with e the energy error, the summary equals
+    that of the estimate computing the error itself (columns, order and values; times aside).  The flux degree
+    of the options reaches the fluxes."""
+    scene = load_scene("disk")
+    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=1)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    own = estimate(disc, sol.x, sol.y)
+    err = disc.errors(sol.x, sol.y)["err_energy"]
+    given = estimate(disc, sol.x, sol.y, err_energy=err, errors=False)
+    a, b = own.summary(), given.summary()
+    assert list(a) == list(b) and list(a)[-2:] == ["time_estimate_s", "i_eff"]
+    assert {k: v for k, v in a.items() if k != "time_estimate_s"} == {k: v for k, v in b.items() if k != "time_estimate_s"}
+    assert estimate(disc, sol.x, sol.y, err_energy=2 * err, errors=False).i_eff == pytest.approx(own.i_eff / 2)
+    assert "i_eff" not in estimate(disc, sol.x, sol.y, errors=False).summary()
+    assert estimate(disc, sol.x, sol.y, EstimatorOptions(flux_order=2)).flux.order == 2

@@ -4,8 +4,9 @@ import pytest
 from ngsolve import Integrate, dx, sqrt
 
 from ngcontact.discretizations.fem import FEMDiscretization
-from ngcontact.estimators import normal_jump, reconstruct_fluxes
+from ngcontact.estimators import EstimatorOptions, normal_jump, reconstruct_fluxes
 from ngcontact.estimators.flux import patch_solver
+from ngcontact.estimators.view import DiscretizationView
 from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
 
@@ -24,8 +25,8 @@ def _solved(scene_name, p, level):
 def test_batched_equals_patchwise_solve(scene, p, level):
     """Same fluxes as PatchwiseSolve (interior and boundary patches, obstacle and membranes, RT_1..RT_3)."""
     disc, sol = _solved(scene, p, level)
-    ref = reconstruct_fluxes(disc, sol.x, sol.y, batched=False)
-    new = reconstruct_fluxes(disc, sol.x, sol.y, batched=True)
+    ref = reconstruct_fluxes(disc, sol.x, sol.y, EstimatorOptions(batched=False))
+    new = reconstruct_fluxes(disc, sol.x, sol.y, EstimatorOptions(batched=True))
     mesh = disc.mesh
     for s_ref, s_new in zip(ref.sigma, new.sigma):
         diff = sqrt(Integrate((s_ref - s_new) ** 2 * dx, mesh))
@@ -38,9 +39,9 @@ def test_batched_solver_is_cached_and_exact_on_curved_meshes():
     """One solver per discretization and RT degree; on curved elements (disk_fitted P2) the eps -> 0 limit
     keeps the normal jumps at round-off (PatchwiseSolve with eps = 1e-10: ~1e-9)."""
     disc, sol = _solved("disk_fitted", 2, 1)
-    assert patch_solver(disc, 2) is patch_solver(disc, 2)
+    assert patch_solver(DiscretizationView.of(disc), 2) is patch_solver(DiscretizationView.of(disc), 2)
     new = reconstruct_fluxes(disc, sol.x, sol.y)
-    ref = reconstruct_fluxes(disc, sol.x, sol.y, batched=False)
+    ref = reconstruct_fluxes(disc, sol.x, sol.y, EstimatorOptions(batched=False))
     assert max(normal_jump(new).values()) <= 1e-12
     assert max(normal_jump(ref).values()) > 1e-11  # the regularized solve is visibly less exact there
     for s_ref, s_new in zip(ref.sigma, new.sigma):
@@ -53,7 +54,7 @@ def test_solve_several_right_hand_sides_at_once():
     from ngcontact.estimators.flux import PatchData, _patch_rhs, _times
 
     disc, sol = _solved("test1", 1, 0)
-    S = patch_solver(disc, 1)
+    S = patch_solver(DiscretizationView.of(disc), 1)
     gfs = disc.gridfunctions(sol.x, sol.y)
     lfs = [_patch_rhs(S.Y, PatchData(u=gfs[name], mu=1.0, hessian=False)) for name in ("u1", "u2")]
     both = S.solve([lambda hat, lf=lf: _times(hat, lf) for lf in lfs])
@@ -67,7 +68,7 @@ def test_cached_operators_and_inverses_reproduce_the_first_call():
     the first call (which solves without them) to round-off."""
     disc, sol = _solved("test1", 2, 1)
     first = reconstruct_fluxes(disc, sol.x, sol.y)
-    S = patch_solver(disc, 2)
+    S = patch_solver(DiscretizationView.of(disc), 2)
     assert not S._inv_cache
     for _ in range(2):
         again = reconstruct_fluxes(disc, sol.x, sol.y)
@@ -86,12 +87,13 @@ def test_patch_constant_multiplier_beyond_the_vertex_device(scene, p, level):
     from ngcontact.estimators import equilibration_defect, estimate
 
     disc, sol = _solved(scene, p, level)
-    flux = reconstruct_fluxes(disc, sol.x, sol.y, multiplier="contact")
+    contact = EstimatorOptions(multiplier="contact")
+    flux = reconstruct_fluxes(disc, sol.x, sol.y, contact)
     if scene == "test1":
         defect = equilibration_defect(disc, flux)
         assert max(d["max_K"] for d in defect.values()) <= 1e-10, defect
     assert max(normal_jump(flux).values()) <= 1e-12
-    est = estimate(disc, sol.x, sol.y, multiplier="contact")
+    est = estimate(disc, sol.x, sol.y, contact)
     assert est.eta_nonc2 == 0.0
     assert est.eta >= est.err_energy
     with pytest.raises(ValueError, match="batched"):

@@ -85,7 +85,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
         if level > 0:  # the refinement and marking of the previous level count for this one
             t0 = time.perf_counter() - t_mesh - t_mark
         out = solve_level(problem, mesh, options, previous=previous, initial_guess=scene.initial_guess,
-                          estimate=True, callback=iteration_callback(result, level, newton_callback))
+                          with_estimate=True, callback=iteration_callback(result, level, newton_callback))
         est = out.estimate
         row = level_row(level, out, options, h=mesh_size(mesh), head={"marked": 0 if marked is None else len(marked)},
                         times={"time_mesh_s": t_mesh, "time_mark_s": t_mark})

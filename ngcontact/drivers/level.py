@@ -14,6 +14,7 @@ from typing import Callable, List, Optional
 import numpy as np
 
 from ..discretizations import DISCRETIZATIONS
+from ..estimators import EstimatorOptions, algebraic_flux, estimate, estimate_components
 from ..newton import Reference, decoupled_newton, semismooth_newton
 from ..rates import rates
 
@@ -42,16 +43,12 @@ class LevelEstimator:
     """The estimators of one discretization, as the Krylov strategy of the Newton loop calls them:
     ``components(x, y, r_alg, dx)`` with ``dx`` the look-ahead increment that defines sigma_alg."""
 
-    def __init__(self, disc, flux_order):
-        from ..estimators.algebraic import algebraic_flux
-        from ..estimators.components import estimate_components
-
-        self.disc, self.flux_order = disc, flux_order
-        self._flux, self._components = algebraic_flux, estimate_components
+    def __init__(self, disc, options: EstimatorOptions):
+        self.disc, self.options = disc, options
 
     def components(self, x, y, r_alg, dx):
-        sig = None if dx is None else self._flux(self.disc, dx, order=max(self.disc.order - 1, 0))
-        return self._components(self.disc, x, y, r_alg=r_alg, sigma_alg=sig, flux_order=self.flux_order)
+        sig = None if dx is None else algebraic_flux(self.disc, dx, self.options)
+        return estimate_components(self.disc, x, y, r_alg=r_alg, sigma_alg=sig, options=self.options)
 
 
 @dataclass
@@ -80,12 +77,12 @@ def newton_solve(disc, x0, y0, options, callback=None, warm: bool = False):
         stop = options.stop_options.rule(Reference(np.array(x0, dtype=float), 2.0 ** -options.order) if warm else None)
         solve = decoupled_newton if options.decouple else semismooth_newton
         return solve(disc.system, x0, y0, nopts, callback, stop=stop)
-    estimator = LevelEstimator(disc, options.flux_order) if options.newton == "adaptive" else None
+    estimator = LevelEstimator(disc, options.estimator_options) if options.newton == "adaptive" else None
     linear = replace(options.linear, estimator=estimator)
     return semismooth_newton(disc.system, x0, y0, nopts, callback, linear=linear, stop=options.stop_options.rule())
 
 
-def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, estimate: bool = False,
+def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, with_estimate: bool = False,
                 callback: Optional[Callable] = None) -> LevelOutcome:
     """Discretize ``problem`` on ``mesh``, solve, evaluate errors (and the estimate).
 
@@ -105,12 +102,8 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, es
     comp = disc.complementarity(sol.x, sol.y)
     t3 = time.perf_counter()
     est = None
-    if estimate:
-        from ..estimators import estimate as estimate_fn
-
-        est = estimate_fn(disc, sol.x, sol.y, errors=False, flux_order=options.flux_order)
-        if "err_energy" in errs:
-            est.err_energy = errs["err_energy"]
+    if with_estimate:
+        est = estimate(disc, sol.x, sol.y, options.estimator_options, err_energy=errs.get("err_energy"), errors=False)
     t4 = time.perf_counter()
     return LevelOutcome(disc, sol, errs, comp, est, t1 - t0, t2 - t1, t3 - t2, t4 - t3)
 

@@ -27,7 +27,7 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
         mesh = next(meshes)
         t_mesh = time.perf_counter() - t0
         out = solve_level(problem, mesh, options, previous=previous, initial_guess=scene.initial_guess,
-                          estimate=options.estimate, callback=iteration_callback(result, level, newton_callback))
+                          with_estimate=options.estimate, callback=iteration_callback(result, level, newton_callback))
         total = time.perf_counter() - t0
         t_cum += total
         row = level_row(level, out, options, h=problem.domain.h(level), times={"time_mesh_s": t_mesh})

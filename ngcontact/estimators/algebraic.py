@@ -38,8 +38,11 @@ needs only the current mesh.  Its price is nu extra GMRES iterations per
 estimator evaluation, which the inexact Newton driver counts (see
 :mod:`ngcontact.newton.inexact`).
 
-Limits: RT degree q <= 2 (P1 and P2; the P1 source uses the vertex-moment
-formula of :mod:`.flux`).
+RT degree: :meth:`.options.EstimatorOptions.alg_flux_degree` (default p - 1, which contains
+-mu grad d_h); q <= 2 (the P1 source uses the vertex device of :mod:`.moments`).
+
+:func:`algebraic_terms` evaluates eta_alg of :mod:`.components` for a given or a global RT_0
+algebraic flux.
 """
 from __future__ import annotations
 
@@ -47,43 +50,32 @@ import math
 from typing import List, Optional
 
 import numpy as np
-from ngsolve import H1, GridFunction, LinearForm, TRIG, dx, grad
+from ngsolve import H1, L2, TRIG, GridFunction, Integrate, LinearForm, div, dx, grad
 
-from .flux import (PatchData, _vertex_moment_term, _vertex_rule, disc_cache, equilibrate_all, is_curved,
-                   patch_regularization, patch_solver)
 from ..domains import DIRICHLET
+from .flux import PatchData, equilibrate_all, flux_bonus, patch_regularization, patch_solver
+from .moments import vertex_moment_term, vertex_rule
+from .options import EstimatorOptions
+from .terms import Integrals
+from .view import DiscretizationView
 
-__all__ = ["algebraic_flux", "algebraic_correction_norm", "eta_alg_of"]
+__all__ = ["algebraic_flux", "algebraic_correction_norm", "algebraic_terms", "eta_alg_of"]
 
 
-def _p1_data(disc):
+def _p1_data(dv: DiscretizationView):
     """(V1, test function, interior-vertex mask, (psi_a, 1) by the vertex rule, vertex rule), cached per disc."""
-    c = disc_cache(disc)
+    c = dv.cache
     if "p1" not in c:
-        V1 = H1(disc.mesh, order=1, dirichlet=DIRICHLET)
+        V1 = H1(dv.mesh, order=1, dirichlet=DIRICHLET)
         v = V1.TestFunction()
         free = np.array(list(V1.FreeDofs()), dtype=bool)
-        rule = {TRIG: _vertex_rule()}
+        rule = {TRIG: vertex_rule()}
         vol = LinearForm(v * dx(intrules=rule)).Assemble().vec.FV().NumPy().copy()
         c["p1"] = (V1, v, free, vol, rule)
     return c["p1"]
 
 
-def _field_functions(disc, dx_alg: np.ndarray) -> List[GridFunction]:
-    """d_alpha,h in the H1 space of ``disc`` from interior nodal values (zero Dirichlet)."""
-    ni = disc.n_interior
-    out = []
-    for a in range(disc.nfields):
-        X = np.zeros(disc.fes.ndof)
-        X[disc.interior] = dx_alg[a * ni:(a + 1) * ni]
-        gf = GridFunction(disc.fes, name=f"d_alg_{a + 1}")
-        gf.vec.FV().NumPy()[:] = disc.nodes.T @ X
-        out.append(gf)
-    return out
-
-
-def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
-                   regularization: Optional[float] = None, batched: bool = True) -> List[GridFunction]:
+def algebraic_flux(disc, dx_alg: np.ndarray, options: Optional[EstimatorOptions] = None) -> List[GridFunction]:
     """sigma_alg,alpha for the correction ``dx_alg`` = x^{k,i+nu} - x^{k,i} (module docstring).
 
     Parameters
@@ -91,54 +83,85 @@ def algebraic_flux(disc, dx_alg: np.ndarray, *, order: Optional[int] = None,
     disc : FEMDiscretization
     dx_alg : ndarray
         x-block (all fields, interior nodes) of X^{k,i+nu} - X^{k,i}.
-    order : int, optional
-        RT degree q (default p; q <= 2).
-    regularization, batched
-        as in :func:`.flux.reconstruct_fluxes` (batched: the patch solver cached per discretization).
+    options : EstimatorOptions, optional
+        RT degree (:meth:`~.options.EstimatorOptions.alg_flux_degree`, at most 2), ``batched``,
+        ``regularization``.
 
     Returns
     -------
     list of GridFunction
         one broken-RT_q GridFunction per field (normal-continuous by construction).
     """
-    p = disc.order
-    q = p if order is None else int(order)
+    opts = EstimatorOptions() if options is None else options
+    dv = DiscretizationView.of(disc)
+    p = dv.order
+    q = opts.alg_flux_degree(p)
     if q > 2:
         raise NotImplementedError(f"algebraic flux implemented for RT degree <= 2, got {q}")
-    mesh = disc.mesh
-    ds = _field_functions(disc, np.asarray(dx_alg, dtype=float))
-    V1, v, free, vol, rule = _p1_data(disc)
+    mesh = dv.mesh
+    ni = dv.n_interior
+    dx_alg = np.asarray(dx_alg, dtype=float)
+    V1, v, free, vol, rule = _p1_data(dv)
     data = []
-    for d, mu in zip(ds, disc.problem.mus):
+    for a, (name, mu) in enumerate(zip(dv.names, dv.mus)):
+        d = dv.interior_function(dx_alg[a * ni:(a + 1) * ni], f"d_alg_{a + 1}")  # d_alpha,h, zero Dirichlet
         mom = LinearForm(mu * grad(d) * grad(v) * dx).Assemble().vec.FV().NumPy()  # small: no TaskManager
         g = GridFunction(V1, name="g_alg")
         g.vec.FV().NumPy()[:] = np.where(free, mom / vol, 0.0)  # (g, psi_a) = mu (grad d, grad psi_a)
-        term = _vertex_moment_term(mesh, g, q)
+        term = vertex_moment_term(mesh, g, q)
 
         def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
             return -term(w) * dx(intrules=rule)
-        data.append(PatchData(u=d, mu=mu, source=source, hessian=p > 1,
-                              bonus_intorder=4 if is_curved(disc) else 0,
-                              name=f"sigma_alg_{a_name(disc, len(data))}"))
-    return equilibrate_all(mesh, q, data, regularization=patch_regularization(disc, regularization),
-                           solver=patch_solver(disc, q) if batched else None)
-
-
-def a_name(disc, i: int) -> str:
-    return ("u1", "u2")[i] if disc.nfields == 2 else "u"
+        data.append(PatchData(u=d, mu=mu, source=source, hessian=p > 1, bonus_intorder=flux_bonus(dv),
+                              name=f"sigma_alg_{name}"))
+    return equilibrate_all(mesh, q, data, regularization=patch_regularization(dv, opts.regularization),
+                           solver=patch_solver(dv, q) if opts.batched else None)
 
 
 def eta_alg_of(disc, sigma_alg) -> float:
     """(sum_alpha ||mu_alpha^{-1/2} sigma_alg,alpha||^2)^{1/2}."""
-    from ngsolve import Integrate
-
+    dv = DiscretizationView.of(disc)
     s = 0.0
-    for sig, mu in zip(sigma_alg, disc.problem.mus):
-        s += float(Integrate(sig * sig * dx, disc.mesh)) / mu
+    for sig, mu in zip(sigma_alg, dv.mus):
+        s += float(Integrate(sig * sig * dx, dv.mesh)) / mu
     return math.sqrt(max(s, 0.0))
 
 
 def algebraic_correction_norm(disc, dx_alg: np.ndarray) -> float:
     """|||d_h||| = (dx^T K dx)^{1/2}: the energy norm of an algebraic correction (exact, algebraic)."""
-    dxa = np.asarray(dx_alg, dtype=float)[: disc.system.n]
-    return math.sqrt(max(float(dxa @ (disc.system.K @ dxa)), 0.0))
+    system = DiscretizationView.of(disc).system
+    dxa = np.asarray(dx_alg, dtype=float)[: system.n]
+    return math.sqrt(max(float(dxa @ (system.K @ dxa)), 0.0))
+
+
+def _p0(mesh, values: np.ndarray) -> GridFunction:
+    gf = GridFunction(L2(mesh, order=0))
+    gf.vec.FV().NumPy()[:] = values
+    return gf
+
+
+def algebraic_terms(ig: Integrals, fields, r_hat, sigma_alg=None):
+    """(flux, mean-free, mean) parts of eta_alg of :mod:`.components` for the representations r^_alpha of
+    the algebraic residual: ||mu^{-1/2} sigma_alg||, the Poincare bound of the mean-free part of
+    r^ - div sigma_alg and the RT_0 bound of its element means.  ``sigma_alg`` None: the RT_0 mixed
+    solution of div sigma_alg = Pi_0 r^ (one global Crouzeix-Raviart solve)."""
+    mesh, h, area = ig.mesh, ig.h, ig.area
+    fl2, loc2, mean2 = 0.0, 0.0, 0.0
+    for a, (fd, r) in enumerate(zip(fields, r_hat)):
+        mu = fd.mu
+        rb = ig.ew(r, dx) / area
+        if sigma_alg is None:  # RT_0 mixed solution of div sigma = Pi_0 r^ (global CR solve)
+            fl2 += ig.dual.norm(rb) ** 2 / mu
+            rem = r - _p0(mesh, rb)
+            loc2 += float(((h / math.pi) ** 2 * np.maximum(ig.ew(rem * rem), 0.0)).sum()) / mu
+        else:
+            sa = sigma_alg[a]
+            fl2 += max(Integrate(sa * sa * ig.dxq, mesh), 0.0) / mu
+            rem = r - div(sa)
+            mb = ig.ew(rem, dx(bonus_intorder=ig.bonus + 8)) / area
+            loc2 += float(((h / math.pi) ** 2 * np.maximum(ig.ew(rem * rem) - mb ** 2 * area, 0.0)).sum()) / mu
+            mn = ig.C_F * math.sqrt(float((mb ** 2 * area).sum()))
+            if mn > 0.0:
+                mn = min(mn, ig.dual.norm(mb))
+            mean2 += mn ** 2 / mu
+    return math.sqrt(fl2), math.sqrt(loc2), math.sqrt(mean2)

@@ -14,21 +14,23 @@ import numpy as np
 from ngsolve import (TRIG, BilinearForm, FacetFESpace, GridFunction, IfPos, Integrate, IntegrationRule, L2, LinearForm,
                      TaskManager, div, dx, specialcf)
 
-from .flux import FluxReconstruction, data_rules
 from ..domains import DIRICHLET
+from .flux import FluxReconstruction
+from .moments import data_rules
+from .view import DiscretizationView, SolutionView
 
 __all__ = ["projected_source", "equilibration_defect", "normal_jump", "complementarity_report"]
 
 
-def _l2_projection(disc, q: int, lf_terms) -> GridFunction:
+def _l2_projection(dv: DiscretizationView, q: int, lf_terms) -> GridFunction:
     """Elementwise L2 projection onto P_q of the functional w -> lf_terms(w)."""
-    Q = L2(disc.mesh, order=q)
+    Q = L2(dv.mesh, order=q)
     u, w = Q.TnT()
     lf = LinearForm(lf_terms(w))
     with TaskManager():
         lf.Assemble()
     gh = GridFunction(Q)
-    if getattr(disc.problem.domain, "curved", False) and disc.order > 1:
+    if dv.curved:
         # L2.SolveM is only approximate on curved elements (measured 2e-4): exact block-diagonal mass
         M = BilinearForm(u * w * dx(bonus_intorder=4)).Assemble()
         gh.vec.data = M.mat.Inverse(inverse="sparsecholesky") * lf.vec
@@ -42,20 +44,24 @@ def projected_source(disc, flux: FluxReconstruction, i: int) -> GridFunction:
     """Pi_q (f_i + s_i lam), the elementwise L2 projection onto P_q (lam = ``flux.lam``).
 
     f and lam are integrated with the FE load and mass rules
-    (:func:`~.flux.data_rules`), the quadratures the discrete problem itself
+    (:func:`~.moments.data_rules`), the quadratures the discrete problem itself
     saw; on affine elements the lam term is exact (a non-polynomial lam^: the
     rule of the patch sources, ``flux.lam_rule``).
     """
-    fd, rules = flux.fields[i], data_rules(disc)
-    return _l2_projection(disc, flux.order, lambda w: fd.f * w * dx(intrules=rules["load"])
-                          + fd.sign * flux.lam * w * _lam_dx(disc, flux))
+    return _projected_source(DiscretizationView.of(disc), flux, i)
 
 
-def _lam_dx(disc, flux: FluxReconstruction):
+def _projected_source(dv: DiscretizationView, flux: FluxReconstruction, i: int) -> GridFunction:
+    fd, rules = flux.fields[i], data_rules(dv)
+    return _l2_projection(dv, flux.order, lambda w: fd.f * w * dx(intrules=rules["load"])
+                          + fd.sign * flux.lam * w * _lam_dx(dv, flux))
+
+
+def _lam_dx(dv: DiscretizationView, flux: FluxReconstruction):
     """The measure of the lam-part of the patch sources: the FE mass rule, or the fixed rule of a
     non-polynomial lam^ (``flux.lam_rule``)."""
     if flux.lam_rule is None:
-        return dx(intrules=data_rules(disc)["mass"])
+        return dx(intrules=data_rules(dv)["mass"])
     return dx(intrules={TRIG: IntegrationRule(TRIG, flux.lam_rule)})
 
 
@@ -74,14 +80,15 @@ def equilibration_defect(disc, flux: FluxReconstruction) -> dict:
         Round-off level (<= 1e-10) means exact equilibration.
     """
     out = {}
-    rules = data_rules(disc)
+    dv = DiscretizationView.of(disc)
+    rules = data_rules(dv)
     for i, (fd, sig) in enumerate(zip(flux.fields, flux.sigma)):
-        gh = projected_source(disc, flux, i)
-        dh = _l2_projection(disc, flux.order, lambda w: fd.f * w * dx(intrules=rules["load"])
-                            + fd.sign * flux.lam * w * _lam_dx(disc, flux) - div(sig) * w * dx(bonus_intorder=2))
+        gh = _projected_source(dv, flux, i)
+        dh = _l2_projection(dv, flux.order, lambda w: fd.f * w * dx(intrules=rules["load"])
+                            + fd.sign * flux.lam * w * _lam_dx(dv, flux) - div(sig) * w * dx(bonus_intorder=2))
         with TaskManager():
-            dK = Integrate(dh * dh * dx(bonus_intorder=2), disc.mesh, element_wise=True).NumPy()
-            ref = Integrate(gh * gh * dx(bonus_intorder=2), disc.mesh)
+            dK = Integrate(dh * dh * dx(bonus_intorder=2), dv.mesh, element_wise=True).NumPy()
+            ref = Integrate(gh * gh * dx(bonus_intorder=2), dv.mesh)
         scale = np.sqrt(max(ref, np.finfo(float).tiny))
         out[fd.name] = {"max_K": float(np.sqrt(np.maximum(dK, 0).max()) / scale),
                         "global": float(np.sqrt(max(dK.sum(), 0.0)) / scale)}
@@ -118,7 +125,7 @@ def normal_jump(flux: FluxReconstruction) -> dict:
     return out
 
 
-def complementarity_report(disc, x, y, gfs: dict = None) -> dict:
+def complementarity_report(disc, x, y) -> dict:
     """Signs and products of the discrete gap and multiplier.
 
     Nodal quantities are what Newton enforces ((DS2) of [CAMWA21]); the
@@ -134,11 +141,10 @@ def complementarity_report(disc, x, y, gfs: dict = None) -> dict:
         ``gap_neg_L2`` (||(u1h - u2h)^neg||), ``contact_product``
         ((lam_h^pos, u1h - u2h)_Omega), ``lam_pos_L2``.
     """
-    if gfs is None:
-        gfs = disc.gridfunctions(x, y)
-    g = disc.system.gap(x)
-    lam, gap = gfs["lam"], gfs["gap"]
-    mesh, bonus = disc.mesh, 2 * disc.order + 4
+    sv = SolutionView.of(disc, x, y)
+    g = sv.disc.system.gap(sv.x)
+    lam, gap = sv.gfs["lam"], sv.gfs["gap"]
+    mesh, bonus = sv.disc.mesh, 2 * sv.disc.order + 4
     with TaskManager():
         vals = {
             "lam_neg_L2": Integrate(IfPos(-lam, lam * lam, 0) * dx(bonus_intorder=bonus), mesh),
@@ -146,8 +152,8 @@ def complementarity_report(disc, x, y, gfs: dict = None) -> dict:
             "gap_neg_L2": Integrate(IfPos(-gap, gap * gap, 0) * dx(bonus_intorder=bonus), mesh),
             "contact_product": Integrate(IfPos(lam, lam, 0) * gap * dx(bonus_intorder=bonus), mesh),
         }
-    out = {"gap_min_nodal": float(g.min(initial=0.0)), "y_min": float(y.min(initial=0.0)),
-           "product_max_nodal": float(np.max(np.abs(g * y), initial=0.0))}
+    out = {"gap_min_nodal": float(g.min(initial=0.0)), "y_min": float(sv.y.min(initial=0.0)),
+           "product_max_nodal": float(np.max(np.abs(g * sv.y), initial=0.0))}
     for k in ("lam_neg_L2", "lam_pos_L2", "gap_neg_L2"):
         out[k] = float(np.sqrt(max(vals[k], 0.0)))
     out["contact_product"] = float(vals["contact_product"])

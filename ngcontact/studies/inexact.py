@@ -90,7 +90,7 @@ def _scene(maxh, fitted=False):
 
 def _run(out, order, maxh, newton, gamma_alg=0.3, gamma_lin=0.3, tag=None, fitted=False, ilu=ILUS[0]):
     from ..results import write_run
-    from ..drivers.uniform import RunOptions, run_scene
+    from ..drivers import RunOptions, run_scene
 
     name = tag or f"p{order}{'f' if fitted else ''}-h{maxh:g}-{newton}"
     d = out / "runs" / name

@@ -1,0 +1,168 @@
+r"""Correction of non-polynomial Dirichlet data: the lifting w_h, eta_bc and eps_w of :mod:`.bound`.
+
+u_h interpolates g, so u - u_h is not in H^1_0 for non-polynomial g (test 1, test 2), and without
+a correction test 1 with p = 2 gives I_eff < 1.  w_h in P_{p+2} has the boundary trace Pi g - u_h
+(NGSolve's boundary projection of g), so u~_h = u_h + w_h = g up to O(h^{p+3}); it is discrete
+harmonic in the strip of the elements within ``STRIP_LAYERS`` vertex layers of the Dirichlet
+boundary and zero beyond ((grad w_h, grad v) = 0 for v in P_{p+2} vanishing outside the strip and
+on the boundary): any w_h with that trace is admissible, and the strip keeps its two sparse
+Cholesky factorizations small.  For P1 the trace error Pi g - I_1 g is one-signed on every edge and
+its lifting decays slowly, hence several layers; for p >= 2 one layer is as good as the global
+lifting (``tests/test_estimators.py::test_dirichlet_lifting_in_a_boundary_strip``).
+
+Any divergence-free rho_a in H(div) gives (grad w_ah, grad v) = (grad w_ah + rho_a, grad v) for
+v in H^1_0, so eps_w = (sum_a mu_a ||grad w_ah + rho_a||^2)^{1/2} bounds the coupling term
+sup_z (w_h, z)_mu / |||z|||.  In 2D the curls rho = curl phi = (d_y phi, -d_x phi), phi in H^1, are
+divergence-free; we take the best one in curl P_{k+1} (k = p + 2, or p + 1 for ``"fast"``) among
+the phi supported on the strip and zero on its inner boundary (so that rho . n = 0 there and rho
+extended by zero is in H(div)): phi solves (grad phi, grad psi) = -(grad w_ah, curl psi) for all
+such psi, Neumann on the Dirichlet boundary (one sparse Cholesky for both fields; a tiny mass term
+when the strip is the whole mesh).  It is the global minimizer over a space that contains the
+divergence-free part of a patchwise equilibration of -grad w_ah.
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import numpy as np
+from ngsolve import (BND, H1, VOL, BilinearForm, BitArray, CoefficientFunction, ElementId, GridFunction,
+                     Integrate, LinearForm, dx, grad)
+
+from ..domains import DIRICHLET
+from .view import DiscretizationView
+
+__all__ = ["STRIP_LAYERS", "boundary_strip", "dirichlet_correction", "dirichlet_lifting"]
+
+#: element layers along the Dirichlet boundary carrying the Dirichlet-data correction (module doc)
+STRIP_LAYERS = 8
+
+
+def boundary_strip(dv: DiscretizationView, layers: int):
+    """(strip, halo) element masks: the elements within ``layers`` vertex-neighbour layers of the
+    Dirichlet boundary, and the next layer (``halo`` empty when the strip is the whole mesh)."""
+    mesh = dv.mesh
+    ev = dv.element_vertices()
+    V1 = H1(mesh, order=1, dirichlet=DIRICHLET)
+    mark = ~np.array(list(V1.FreeDofs()), dtype=bool)[:mesh.nv]   # Dirichlet boundary vertices
+    strip = np.zeros(mesh.ne, dtype=bool)
+    for _ in range(max(int(layers), 1)):
+        grown = mark[ev].any(axis=1)
+        if grown.sum() == strip.sum():  # the whole (connected) mesh
+            break
+        strip = grown
+        mark = np.zeros(mesh.nv, dtype=bool)
+        mark[ev[strip].ravel()] = True
+    halo = mark[ev].any(axis=1) & ~strip
+    return strip, halo
+
+
+def _element_dofs(space, elements) -> np.ndarray:
+    dofs = [d for e in np.flatnonzero(elements) for d in space.GetDofNrs(ElementId(VOL, int(e)))]
+    return np.unique(np.array(dofs, dtype=np.int64)) if dofs else np.zeros(0, dtype=np.int64)
+
+
+def _bitarray(mask) -> BitArray:
+    ba = BitArray(len(mask))
+    ba.Clear()
+    for i in np.flatnonzero(mask):
+        ba.Set(int(i))
+    return ba
+
+
+def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, layers: Optional[int] = None):
+    """Liftings w_h in P_k of the Dirichlet data error, discrete harmonic in a boundary strip (module doc).
+
+    Parameters
+    ----------
+    dv : DiscretizationView
+    fields : sequence of FieldData
+        the fields (u_ah and g_a).
+    k, rt_order : int
+        degree of w_h; rho = curl phi with phi in P_{rt_order + 1}.
+    layers : int, optional
+        strip width (default ``STRIP_LAYERS``).
+
+    Returns
+    -------
+    ws : list of GridFunction or None
+        w_h per field (None where u_h already has the exact trace).
+    eta_bc : float
+        |||w_h|||.
+    eps_w : float
+        (sum_a mu_a ||grad w_ah + rho_a||^2)^{1/2}, rho_a a divergence-free
+        equilibration of -grad w_ah (bound of sup_z (w_h, z)_mu / |||z|||).
+    bc_K : ndarray or None
+        element parts of eta_bc^2 + eps_w^2 (for marking).
+    """
+    mesh = dv.mesh
+    V = H1(mesh, order=k, dirichlet=DIRICHLET)
+    ws = []
+    for fd in fields:
+        gg, gu = GridFunction(V), GridFunction(V)
+        gg.Set(fd.g, BND)
+        gu.Set(fd.u, BND)
+        w = GridFunction(V, name=f"w_{fd.name}")
+        w.vec.data = gg.vec - gu.vec
+        scale = max(float(np.abs(gg.vec.FV().NumPy()).max()), 1.0)
+        ws.append(w if float(np.abs(w.vec.FV().NumPy()).max()) > 1e-13 * scale else None)
+    if all(w is None for w in ws):
+        return ws, 0.0, 0.0, None
+    strip, halo = boundary_strip(dv, STRIP_LAYERS if layers is None else layers)
+    inner = halo.any()
+    on_strip = _bitarray(strip)
+    dxs = dx(definedonelements=on_strip)
+    # w_h: discrete harmonic in the strip, zero on its inner boundary (extended by zero)
+    free_v = np.zeros(V.ndof, dtype=bool)
+    free_v[_element_dofs(V, strip)] = True
+    free_v &= np.array(list(V.FreeDofs()), dtype=bool)
+    if inner:
+        free_v[_element_dofs(V, halo)] = False
+    u, v = V.TnT()
+    a = BilinearForm(grad(u) * grad(v) * dxs).Assemble()
+    inv = a.mat.Inverse(_bitarray(free_v), inverse="sparsecholesky")
+    # divergence-free rho = curl phi, phi in P_{q+1} on the strip, phi = 0 on its inner boundary (so that
+    # rho . n = 0 there and rho extended by zero is in H(div)); no inner boundary: the tiny mass term
+    # fixes the constant
+    W = H1(mesh, order=rt_order + 1)
+    free_w = np.zeros(W.ndof, dtype=bool)
+    free_w[_element_dofs(W, strip)] = True
+    if inner:
+        free_w[_element_dofs(W, halo)] = False
+    ph, ps = W.TnT()
+    curl_ps = CoefficientFunction((grad(ps)[1], -grad(ps)[0]))
+    c = BilinearForm(grad(ph) * grad(ps) * dxs + (0.0 if inner else 1e-10) * ph * ps * dxs).Assemble()
+    cinv = c.mat.Inverse(_bitarray(free_w), inverse="sparsecholesky")
+    bc2 = eps2 = 0.0
+    loc = np.zeros(mesh.ne)
+    for fd, w in zip(fields, ws):
+        if w is None:
+            continue
+        r = w.vec.CreateVector()
+        r.data = a.mat * w.vec
+        w.vec.data -= inv * r  # discrete harmonic in the strip: (grad w, grad v) = 0 for v in P_k, v = 0 off it
+        phi = GridFunction(W, name=f"phi_{fd.name}")
+        phi.vec.data = cinv * LinearForm(-grad(w) * curl_ps * dxs).Assemble().vec
+        rho = CoefficientFunction((grad(phi)[1], -grad(phi)[0]))  # div rho = 0
+        b_K = fd.mu * Integrate(grad(w) * grad(w) * dx, mesh, element_wise=True).NumPy()
+        e_K = fd.mu * Integrate((grad(w) + rho) ** 2 * dx, mesh, element_wise=True).NumPy()
+        bc2 += float(b_K.sum())
+        eps2 += float(e_K.sum())
+        loc += b_K + e_K
+    return ws, math.sqrt(max(bc2, 0.0)), math.sqrt(max(eps2, 0.0)), loc
+
+
+def dirichlet_lifting(dv: DiscretizationView, fields, mode):
+    """(ws, eta_bc, eps_w, bc_K) of :func:`dirichlet_correction` with w_h in P_{p+2}; ``mode``:
+    True (rho in curl P_{p+3}), "fast" (curl P_{p+2}) or False (no correction).
+
+    w_h depends only on the boundary trace of u_h, i.e. on the discretization's Dirichlet values (the
+    algebraic solution holds interior nodes only): computed once per discretization and mode, shared by
+    every estimate and every iterate of :mod:`.components`."""
+    if not mode:
+        return [None] * len(fields), 0.0, 0.0, None
+    key = ("bc", mode)
+    if key not in dv.cache:
+        k = dv.order + 2
+        dv.cache[key] = dirichlet_correction(dv, fields, k, k - 1 if mode == "fast" else k)
+    return dv.cache[key]
