@@ -7,8 +7,8 @@ import pytest
 
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.estimators import (Components, EstimatorOptions, FieldData, FluxReconstruction, equilibration_defect,
-                                  estimate, estimate_components, newton_history, newton_iterates,
-                                  plot_components_history)
+                                  estimate, estimate_components, newton_history, plot_components_history)
+from ngcontact.drivers.level import newton_iterates
 from ngcontact.estimators.flux import vertex_device_exact
 from ngcontact.estimators.view import DiscretizationView
 from ngcontact.scenes import load_scene

@@ -35,7 +35,6 @@ def test_no_split_for_the_obstacle_problem_or_coupled_blocks():
     d = _disc(1.0)
     s = d.system
     from ngcontact.algebra.system import ComplementaritySystem
-    import scipy.sparse as sp
 
     m = s.m
     K = s.K.tolil()

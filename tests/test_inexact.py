@@ -1,5 +1,4 @@
 """Inexact and adaptive inexact semismooth Newton ([JSC20]): GMRES + ILU, stopping rules, agreement of modes."""
-import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -213,7 +212,7 @@ def test_algebraic_flux_estimates_the_algebraic_error(disk):
 
 def test_ilu_options_reach_the_preconditioner(disk):
     """A larger ILU fill is used (recorded fill ratio) and pays in GMRES iterations; same discrete solution."""
-    s, ref = disk.disc.system, disk.ref
+    ref = disk.ref
     runs = {}
     for ilu in ((1e-4, 2.0), (1e-6, 15.0)):
         res = _krylov(disk, "gmres", ilu_drop_tol=ilu[0], ilu_fill=ilu[1])

@@ -15,10 +15,10 @@ import numpy as np
 
 from ..discretizations import DISCRETIZATIONS
 from ..estimators import EstimatorOptions, algebraic_flux, estimate, estimate_components
-from ..newton import Reference, decoupled_newton, semismooth_newton
+from ..newton import NewtonOptions, Reference, decoupled_newton, semismooth_newton
 from ..rates import rates
 
-__all__ = ["RunResult", "LevelOutcome", "LevelEstimator", "solve_level", "level_row", "update_rates",
+__all__ = ["RunResult", "LevelOutcome", "LevelEstimator", "solve_level", "newton_iterates", "level_row", "update_rates",
            "record_level", "iteration_callback", "status"]
 
 
@@ -80,6 +80,17 @@ def newton_solve(disc, x0, y0, options, callback=None, warm: bool = False):
     estimator = LevelEstimator(disc, options.estimator_options) if options.newton == "adaptive" else None
     linear = replace(options.linear, estimator=estimator)
     return semismooth_newton(disc.system, x0, y0, nopts, callback, linear=linear, stop=options.stop_options.rule())
+
+
+def newton_iterates(disc, x0, y0, *, cfun: str = "min", tol: float = 1e-10, maxit: int = 100) -> list:
+    """The iterates [(x^0, y^0), (x^1, y^1), ...] of semismooth Newton without line search and with fresh
+    factorizations, until ||Phi|| / ||F|| <= tol or ``maxit`` steps (estimators along the Newton path:
+    :func:`ngcontact.estimators.newton_history`)."""
+    its = []
+    semismooth_newton(disc.system, x0, y0, NewtonOptions(cfun=cfun, tol=tol, maxit=maxit, line_search=False,
+                                                         reuse_factorization=False),
+                      on_iterate=lambda k, x, y: its.append((x, y)))
+    return its
 
 
 def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, with_estimate: bool = False,

@@ -21,7 +21,7 @@ from .bound import Estimate, estimate
 from .checks import complementarity_report, equilibration_defect, normal_jump, projected_source
 from .components import Components, algebraic_residual_function, estimate_components
 from .flux import FluxReconstruction, equilibrate, reconstruct_fluxes
-from .history import ComponentsHistory, newton_history, newton_iterates, plot_components_history
+from .history import ComponentsHistory, newton_history, plot_components_history
 from .multipliers import multiplier_p1
 from .nonnegative import nonnegative_multiplier
 from .options import EstimatorOptions
@@ -33,4 +33,4 @@ __all__ = ["EstimatorOptions", "Estimate", "estimate", "friedrichs_constant", "e
            "multiplier_p1", "algebraic_flux",
            "equilibration_defect", "normal_jump", "complementarity_report", "projected_source",
            "Components", "ComponentsHistory", "estimate_components", "algebraic_residual_function",
-           "newton_history", "newton_iterates", "plot_components_history"]
+           "newton_history", "plot_components_history"]

@@ -8,17 +8,13 @@
 """
 from __future__ import annotations
 
-import math
-from typing import Callable, List, Optional, Sequence
+from typing import List, Optional, Sequence
 
-import numpy as np
 
-from ..algebra.cfunctions import get_cfunction
 from .components import estimate_components
 from .options import EstimatorOptions
-from .view import DiscretizationView
 
-__all__ = ["newton_history", "ComponentsHistory", "newton_iterates", "plot_components_history"]
+__all__ = ["newton_history", "ComponentsHistory", "plot_components_history"]
 
 
 def newton_history(disc, iterates, *, errors: bool = True, options: Optional[EstimatorOptions] = None) -> List[dict]:
@@ -70,29 +66,6 @@ class ComponentsHistory:
 
     def plot(self, out_png) -> None:
         plot_components_history(self.rows, out_png)
-
-
-def newton_iterates(disc, x0, y0, *, cfun: str = "min", tol: float = 1e-10, maxit: int = 100,
-                    callback: Optional[Callable] = None):
-    """Plain semismooth Newton (no line search) yielding (x^k, y^k) for k = 0, 1, ...
-
-    The loop of :func:`ngcontact.newton.semismooth_newton` with ``line_search=False``, exposing
-    the iterates (the production loop's callback receives only an ``IterationRecord``).
-    Stops after ||Phi|| / ||F|| <= tol or ``maxit`` steps.
-    """
-    system = DiscretizationView.of(disc).system
-    cf = get_cfunction(cfun)
-    scale = max(float(np.linalg.norm(system.F)), np.finfo(float).tiny)
-    x, y = np.array(x0, dtype=float), np.array(y0, dtype=float)
-    for k in range(maxit + 1):
-        yield x, y
-        g = system.gap(x)
-        c = cf.value(g, y)
-        res = math.sqrt(float(np.sum(system.residual(x, y) ** 2) + np.sum(c ** 2))) / scale
-        if res <= tol or k == maxit:
-            return
-        Ca, Cb = cf.jacobian(g, y)
-        x, y, _ = system.newton_step(x, y, c, Ca, Cb)
 
 
 def plot_components_history(rows: Sequence[dict], out_png) -> None:

@@ -39,7 +39,8 @@ __all__ = ["semismooth_newton", "armijo_backtracking", "round_off_hint"]
 
 def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOptions = NewtonOptions(),
                       callback: Optional[Callable[[IterationRecord], None]] = None, *,
-                      linear=None, stop=None) -> NewtonResult:
+                      linear=None, stop=None,
+                      on_iterate: Optional[Callable[[int, np.ndarray, np.ndarray], None]] = None) -> NewtonResult:
     """Solve the complementarity system ``system`` from (x0, y0).
 
     Parameters
@@ -56,6 +57,9 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     stop : stopping rule, optional
         :class:`~.stopping.ResidualStop` (default), :class:`~.stopping.BalancedStop`
         or :class:`~.stopping.AdaptiveStop`.
+    on_iterate : callable, optional
+        ``on_iterate(k, x, y)`` with every iterate X^k, k = 0 included (diagnostics that need the
+        iterates themselves, e.g. estimators along the Newton path).
 
     Returns
     -------
@@ -83,6 +87,8 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     estimates: list = []
     if callback:
         callback(history[-1])
+    if on_iterate:
+        on_iterate(0, x, y)
 
     def result(converged, reason, k):
         return NewtonResult(x, y, converged, reason, k, history, estimates)
@@ -118,6 +124,8 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         history.append(rec)
         if callback:
             callback(rec)
+        if on_iterate:
+            on_iterate(k, x, y)
         if failed:
             reason = f"line search failed at iteration {k} (step < {options.min_step:.1e})"
             reason += round_off_hint(rec.res, options.tol)
