@@ -18,6 +18,18 @@ def solve_levels():
 
 
 @pytest.fixture
+def solved_scene():
+    """Solve a bundled scene on mesh level ``level`` with FEM P_order from its initial guess:
+    returns (scene, disc, NewtonResult)."""
+    def _solve(name, level=0, order=1, **newton):
+        scene = load_scene(name)
+        disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(level), order=order)
+        sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions(**newton))
+        return scene, disc, sol
+    return _solve
+
+
+@pytest.fixture
 def solve_one():
     def _solve(problem, level=0, order=1, cfun="min", init=None, **kw):
         disc = FEMDiscretization(problem, problem.domain.mesh(level), order=order)

@@ -14,18 +14,12 @@ from ngcontact.estimators.view import DiscretizationView
 from ngcontact.scenes import load_scene
 
 
-def _solved(solve_one, scene_name, p, level):
-    scene = load_scene(scene_name)
-    disc, sol = solve_one(scene.problem, level, p, init=scene.initial_guess)
-    assert sol.converged
-    return disc, sol
-
-
 @pytest.mark.parametrize("scene,p,level", [("disk", 1, 0), ("disk", 2, 0), ("test1", 1, 1), ("test2", 2, 0)])
-def test_components_at_convergence(solve_one, scene, p, level):
+def test_components_at_convergence(solved_scene, scene, p, level):
     """Exact Newton, converged: eta_lin ~ 0, eta_alg = 0 and eta_disc = eta of estimate() with the same
     multiplier (the default estimate() is at most that)."""
-    disc, sol = _solved(solve_one, scene, p, level)
+    _, disc, sol = solved_scene(scene, level, p)
+    assert sol.converged
     comp = estimate_components(disc, sol.x, sol.y, errors=True)
     # the components use one multiplier (patch constants, or the fit where the vertex device is not
     # exact); estimate() by default also tries the shaped one and may be smaller
@@ -60,7 +54,7 @@ def test_components_along_newton_iterations(tmp_path):
 
 
 @pytest.mark.parametrize("scene,p", [("disk", 1), ("test2", 2)])
-def test_components_inexact_solve(solve_one, scene, p):
+def test_components_inexact_solve(solved_scene, scene, p):
     """A perturbed solution with its algebraic residual: guaranteed bound, sigma_disc equilibrated with
     f - (-1)^a lam_h - r_ah, eta_alg proportional to the residual, any sigma_alg accepted.
     (p = 2 on straight elements: on curved ones the vertex device of :mod:`.moments` is exact
@@ -68,7 +62,8 @@ def test_components_inexact_solve(solve_one, scene, p):
     stays guaranteed since eta_R and eta_quad use the actual div sigma.)"""
     from ngsolve import HDiv, GridFunction
 
-    disc, sol = _solved(solve_one, scene, p, 0)
+    _, disc, sol = solved_scene(scene, 0, p)
+    assert sol.converged
     rng = np.random.default_rng(1)
     noise = rng.standard_normal(len(sol.x)) * np.abs(sol.x).max()
     etas = []
@@ -93,10 +88,11 @@ def test_components_inexact_solve(solve_one, scene, p):
     assert any("differs" in str(m.message) for m in w)
 
 
-def test_components_use_the_flux_degree_of_the_options(solve_one):
+def test_components_use_the_flux_degree_of_the_options(solved_scene):
     """options.flux_order reaches sigma_disc (RT_{p+1}), and a degree other than p or p + 1 is refused
     before any work, naming the option."""
-    disc, sol = _solved(solve_one, "disk", 1, 0)
+    _, disc, sol = solved_scene("disk", 0, 1)
+    assert sol.converged
     comp = estimate_components(disc, sol.x, sol.y, options=EstimatorOptions(flux_order=2))
     assert all(s.space.globalorder == 2 for s in comp.sigma_disc)
     assert estimate_components(disc, sol.x, sol.y).sigma_disc[0].space.globalorder == 1

@@ -193,12 +193,9 @@ def test_eta_vanishes_for_polynomial_solution_without_contact(p):
     assert set(cells) == {"eta_K", "eta_C", "eta_F_u1", "eta_F_u2", "eta_R_u1", "eta_R_u2"}
 
 
-def test_flux_order_and_signs():
+def test_flux_order_and_signs(solved_scene):
     """RT_0 is also equilibrated (in the means) but less effective than the default RT_1 for p = 1."""
-    scene = load_scene("disk")
-    prob = scene.problem
-    disc = FEMDiscretization(prob, prob.domain.mesh(1), order=1)
-    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    scene, disc, sol = solved_scene("disk", 1, 1)
     flux0 = reconstruct(SolutionView.of(disc, sol.x, sol.y), 0)
     assert max(v["max_K"] for v in equilibration_defect(disc, flux0).values()) <= 1e-10
     assert [fd.sign for fd in flux0.fields] == [1, -1]
@@ -207,11 +204,8 @@ def test_flux_order_and_signs():
     assert 1.0 <= e1.i_eff < e0.i_eff
 
 
-def test_complementarity_report_at_convergence():
-    scene = load_scene("disk")
-    prob = scene.problem
-    disc = FEMDiscretization(prob, prob.domain.mesh(0), order=1)
-    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+def test_complementarity_report_at_convergence(solved_scene):
+    scene, disc, sol = solved_scene("disk", 0, 1)
     rep = complementarity_report(disc, sol.x, sol.y)
     assert rep["gap_min_nodal"] >= -1e-12 and rep["y_min"] >= -1e-12
     assert rep["product_max_nodal"] <= 1e-12
@@ -219,12 +213,9 @@ def test_complementarity_report_at_convergence():
     assert rep["contact_product"] >= 0.0
 
 
-def test_nonconformity_estimator_sees_a_kg_violation():
+def test_nonconformity_estimator_sees_a_kg_violation(solved_scene):
     """A Newton iterate with u1h < u2h somewhere has eta_nonc1 > 0 and stays a bound."""
-    scene = load_scene("disk")
-    prob = scene.problem
-    disc = FEMDiscretization(prob, prob.domain.mesh(1), order=1)
-    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions(maxit=1))
+    scene, disc, sol = solved_scene("disk", 1, 1, maxit=1)
     assert disc.system.gap(sol.x).min() < 0
     est = estimate(disc, sol.x, sol.y)
     assert est.eta_nonc1 > 0
@@ -392,14 +383,12 @@ def test_dirichlet_lifting_in_a_boundary_strip():
     assert est.eta >= est.err_energy
 
 
-def test_contact_fit_reweighting_removes_negative_lobes():
+def test_contact_fit_reweighting_removes_negative_lobes(solved_scene):
     """L-shape P3 (continuous free boundary): the reweighted contact fit of lam^ has no negative part left
     (eta_nonc,2 at round-off) and a smaller estimate than the plain fit (measured I_eff 1.464 -> 1.387)."""
     from ngcontact.estimators import multipliers as FL
 
-    scene = load_scene("lshape")
-    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=3)
-    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    scene, disc, sol = solved_scene("lshape", 0, 3)
     fit = EstimatorOptions(multiplier="fit")
     est = estimate(disc, sol.x, sol.y, fit)
     old = FL.ContactMultiplier.ROUNDS
@@ -462,19 +451,19 @@ def test_estimator_options_are_validated_once():
     assert EstimatorOptions(alg_flux_order=2).alg_flux_degree(1) == 2
 
 
-def test_energy_error_from_the_caller():
+def test_energy_error_from_the_caller(solved_scene):
     """estimate(..., err_energy=e) reports e and i_eff = eta / e; with e the energy error, the summary equals
     that of the estimate computing the error itself (columns, order and values; times aside).  The flux degree
     of the options reaches the fluxes."""
-    scene = load_scene("disk")
-    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=1)
-    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    scene, disc, sol = solved_scene("disk", 0, 1)
     own = estimate(disc, sol.x, sol.y)
     err = disc.errors(sol.x, sol.y)["err_energy"]
     given = estimate(disc, sol.x, sol.y, err_energy=err, errors=False)
     a, b = own.summary(), given.summary()
     assert list(a) == list(b) and list(a)[-2:] == ["time_estimate_s", "i_eff"]
-    assert {k: v for k, v in a.items() if k != "time_estimate_s"} == {k: v for k, v in b.items() if k != "time_estimate_s"}
+    # equal up to the round-off of NGSolve's threaded integration (sums in a varying order)
+    assert {k: v for k, v in b.items() if k != "time_estimate_s"} == pytest.approx(
+        {k: v for k, v in a.items() if k != "time_estimate_s"}, rel=1e-12, abs=1e-15 * a["eta"])
     assert estimate(disc, sol.x, sol.y, err_energy=2 * err, errors=False).i_eff == pytest.approx(own.i_eff / 2)
     assert "i_eff" not in estimate(disc, sol.x, sol.y, errors=False).summary()
     assert estimate(disc, sol.x, sol.y, EstimatorOptions(flux_order=2)).flux.order == 2
