@@ -197,7 +197,7 @@ def _parse_flux_order(value, order: int):
 
 def _check_run_flags(args, options, scene) -> None:
     """Flags that the chosen run would silently ignore: usage errors."""
-    from .problems.base import TwoMembraneProblem
+    from .problems import TwoMembraneProblem
 
     _check_solver_options(args, options.newton)
     if args.verbose and args.quiet:

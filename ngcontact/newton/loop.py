@@ -53,7 +53,8 @@ from typing import Callable, List, Optional
 import numpy as np
 
 from ..algebra.cfunctions import get_cfunction
-from ..algebra.system import LINEAR_PATHS, ComplementaritySystem, FactorReuse
+from ..algebra.reuse import FactorReuse
+from ..algebra.system import LINEAR_PATHS, ComplementaritySystem
 from ..algebra.linalg import FixedPatternCholesky, SPDSolver
 
 __all__ = ["NewtonOptions", "IterationRecord", "NewtonResult", "Reference", "semismooth_newton", "decoupled_newton",
@@ -196,7 +197,7 @@ def semismooth_newton(
 
     # factorization reuse needs the generic reduced step (subclasses with their own newton_step: no)
     reuse = None
-    if options.reuse_factorization and type(system).newton_step is ComplementaritySystem.newton_step:
+    if options.reuse_factorization and system.factor_reuse:
         reuse = FactorReuse(system, fixed=fixed)
     reason = f"maximum number of iterations ({options.maxit}) reached"
     for k in range(1, options.maxit + 1):
