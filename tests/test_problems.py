@@ -65,7 +65,8 @@ def test_declared_problem_interface():
     assert obs.loads == (obs.f,) and obs.dirichlet == (obs.g,) and obs.obstacle is obs.psi
     assert list(obs.data()) == ["f", "g", "psi"] and obs.dirichlet_names == ("g",)
     assert (obs.boundary_order.upper, obs.boundary_order.lower) == ("g", "psi")
-    mp = SQ.mesh(0)(0.25, 0.5)
+    mesh = SQ.mesh(0)  # kept alive while its mesh point is used
+    mp = mesh(0.25, 0.5)
     assert mem.gap([mem.g1, mem.g2])(mp) == pytest.approx(2.5)
     assert obs.gap([obs.g])(mp) == pytest.approx(2.0 - 0.25)
 

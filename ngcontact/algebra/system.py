@@ -3,7 +3,8 @@
     K x - B^T (D y) = F,
     g(x) = B x - b >= 0,   y >= 0,   g(x) . y = 0,
 
-with K symmetric positive definite (n x n), D > 0 diagonal (m weights) and
+with K symmetric positive definite (n x n; a subclass may admit a
+non-symmetric K and factorize it in ``direct_solve``), D > 0 diagonal (m weights) and
 each constraint row l of B of the form  e_up(l) - e_lo(l)  (two-membrane
 contact: g_l = X1_l - X2_l) or  e_up(l)  (obstacle: g_l = X_l - psi_l).
 This is (DS2) / "Matrix representation" of [CAMWA21]:  x = [X1, X2],
@@ -30,15 +31,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
 
 from .linalg import SPDSolver
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .reuse import FactorReuse
 
 __all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS"]
 
@@ -233,7 +231,7 @@ class ComplementaritySystem:
         """Solve the reduced system A z = b of a step by a fresh factorization (A SPD: ``self.solver``)."""
         return SPDSolver(A, self.solver).solve(b)
 
-    def newton_step(self, x, y, C, Ca, Cb, eps: float = 1e-12, reuse: "Optional[FactorReuse]" = None):
+    def newton_step(self, x, y, C, Ca, Cb, eps: float = 1e-12, reuse=None):
         """New iterate (x', y') of the linearized system; see the module docstring.
 
         With ``reuse`` (a :class:`~ngcontact.algebra.reuse.FactorReuse`; only where

@@ -120,7 +120,7 @@ class BrokenLagrange:
         on_edge = (self.lat[None, :, :] == 0) & self.bnd_edge[self.cell_edges][:, None, :]
         at_vertex = (self.lat[None, :, :] == order) & bvert[el][:, None, :]
         self.node_on_boundary = (on_edge | at_vertex).any(-1)
-        self._l2 = None
+        self._l2 = self._mref = None  # built on first use
 
     # ---------------------------------------------------------- reference basis
     def _monomials(self, ref_pts, deriv=None) -> np.ndarray:
@@ -191,7 +191,7 @@ class BrokenLagrange:
     @property
     def mass_ref(self) -> np.ndarray:
         """(phi_i, phi_j) on the reference triangle; M_K = detJ_K * mass_ref."""
-        if not hasattr(self, "_mref"):
+        if self._mref is None:
             q, w = _quadrature(TRIG, 2 * self.p)
             phi = self.shape(q)
             self._mref = np.einsum("q,qi,qj->ij", w, phi, phi)

@@ -71,6 +71,7 @@ class FEMDiscretization(Discretization):
             raise ValueError(f"order must be 1, 2, 3 or 4 for fem, got {order!r}")
         t0 = time.perf_counter()
         self.problem, self.mesh, self.order, self.quad_bonus = problem, mesh, order, quad_bonus
+        self._mass = self._mass_lu = None  # nodal mass matrix and its LU factors, built on first use
         if getattr(problem.domain, "curved", False) and order > 1:
             mesh.Curve(order)
         self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
@@ -169,7 +170,7 @@ class FEMDiscretization(Discretization):
 
     # ------------------------------------------------------------ postprocess
     def mass_nodal(self) -> sp.csr_matrix:
-        if not hasattr(self, "_mass"):
+        if self._mass is None:
             u, v = self.fes.TnT()
             M = BilinearForm(u * v * dx).Assemble()
             self._mass = self.nodes.transform(scipy_csr(M))
@@ -193,7 +194,7 @@ class FEMDiscretization(Discretization):
 
     def mass_nodal_lu(self):
         """LU factors of :meth:`mass_nodal` (factorized once: every Newton iterate and estimate reuses them)."""
-        if not hasattr(self, "_mass_lu"):
+        if self._mass_lu is None:
             import scipy.sparse.linalg as spla
 
             self._mass_lu = spla.splu(self.mass_nodal().tocsc())
