@@ -10,7 +10,7 @@ __version__ = "0.1.0"
 
 from .domains import (CrissCrossSquare, Domain, GeometryDomain, LShape, MeshFileDomain,  # noqa: E402
                       StructuredSquare, UnitDisk, mesh_size)
-from .problems.base import ExactSolution, ObstacleProblem, ProblemDataError, TwoMembraneProblem  # noqa: E402
+from .problems import ExactSolution, ObstacleProblem, ProblemDataError, TwoMembraneProblem  # noqa: E402
 
 __all__ = [
     "CrissCrossSquare", "Domain", "GeometryDomain", "LShape", "MeshFileDomain", "StructuredSquare",

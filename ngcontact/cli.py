@@ -205,7 +205,7 @@ def _check_run_flags(args, options, scene) -> None:
                           "(or a budget: --max-ndof, --target-eta, --max-time)")
     if args.no_condense and options.disc != "hho":
         raise _UsageError(f"option --no-condense needs --disc hho (got --disc {options.disc})")
-    if args.decouple and getattr(scene.problem, "nfields", 2 if scene.problem.kind == "membranes" else 1) != 2:  # TODO(layout)
+    if args.decouple and scene.problem.nfields != 2:
         raise _UsageError(f"option --decouple needs a two-membrane scene ({scene.name} is a "
                           f"{type(scene.problem).__name__})")
     if args.gamma_balance is not None and options.newton_stop != "balanced":

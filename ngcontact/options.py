@@ -115,7 +115,7 @@ class RunOptions:
                 bad(name, "True or False")
         if self.newton not in NEWTON_MODES:
             bad("newton", f"one of {NEWTON_MODES}")
-        estimable = _is_estimable(Disc)
+        estimable = Disc.estimable
         if self.estimate and not estimable:
             bad("estimate", f"False for disc {self.disc!r} (estimators exist for {_estimable()})")
         if self.adaptive and not estimable:
@@ -156,10 +156,5 @@ class RunOptions:
         return cls(**opts)
 
 
-def _is_estimable(Disc) -> bool:
-    # TODO(layout): Disc.estimable once the discretizations declare it
-    return getattr(Disc, "estimable", Disc is DISCRETIZATIONS["fem"])
-
-
 def _estimable() -> list:
-    return sorted(name for name, D in DISCRETIZATIONS.items() if _is_estimable(D))
+    return sorted(name for name, D in DISCRETIZATIONS.items() if D.estimable)

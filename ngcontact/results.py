@@ -31,7 +31,7 @@ err_max_nodal       max over nodes |u_a(x_l) - u_ah(x_l)|           [exact only]
 err_jump            dg: jump seminorm (sum_F eta/h_F ||[u_ah - u_a]||_F^2)^(1/2) [exact]
 newton_its          semismooth Newton iterations on this level
 newton_converged    1 if the Newton mode's stopping criterion was met, else 0: ||Phi||/||F|| <= tol
-                    (exact, exact-gmres, inexact) or eta_lin <= gamma_lin eta_disc (adaptive)
+                    (direct, gmres, inexact) or eta_lin <= gamma_lin eta_disc (adaptive)
 res_final           final ||Phi||/||F|| (adaptive: it contains the algebraic residual of the accepted
                     GMRES iterate and can be O(1) when the estimators say the error is discretization-dominated)
 newton_balanced     --newton-stop balanced: 1 if the level stopped on eps_lin <= gamma_balance eps_disc
@@ -41,7 +41,7 @@ eps_lin_final, eps_disc_final
 active_nodes        nodes in the discrete contact set (gap <= X3)
 linear_size         largest linear system solved in a Newton step (reduced SPD /
                     condensed face system / full system)
-gmres_its           --newton exact-gmres|inexact|adaptive: GMRES iterations, all Newton steps
+gmres_its           --newton gmres|inexact|adaptive: GMRES iterations, all Newton steps
                     (adaptive: including the nu look-ahead steps of sigma_alg)
 gmres_max_step      largest number of GMRES iterations in one Newton step
 gmres_first_step    GMRES iterations of the first Newton step
@@ -49,13 +49,14 @@ n_estimates         estimator evaluations inside the Newton loop (adaptive: ever
 time_estimate_newton_s  time of those evaluations (inside time_solve_s, not in time_linear_s)
 eta_disc_final, eta_lin_final, eta_alg_final
                     error components of the last iterate ([JSC20] Corollary; adaptive
-                    mode, or inexact/exact-gmres with estimator logging)
+                    mode, or gmres/inexact with estimator logging)
 gap_min             min over nodes of X1 - X2 (or X - psi): >= -tol at convergence
 lam_min             min of X3: >= -tol at convergence
 product_max         max |gap * X3|
 time_mesh_s         building/refining the mesh (--adaptive: copy + bisection giving T_j)
 time_mark_s         --adaptive: marking on T_{j-1} (Doerfler / maximum)
-time_prolong_s      --adaptive: warm start, previous solution prolongated to T_j
+time_prolong_s      initial guess: the previous level's solution prolongated (nested start) or
+                    the scene's initial guess (cold start)
 time_assembly_s     spaces, Lagrange nodes, matrices, loads
 time_solve_s        semismooth Newton (all iterations)
 time_linear_s       reduced SPD systems (assembly + factorization + solve)
@@ -86,7 +87,7 @@ time_cum_s          cumulated over levels 0..j
 newton.csv: one row per (level, time step n if any, iteration k) with the key columns, k, res, res_lin, res_c,
 n_active, n_changed, step, time_linear, time_step, linear_size, linear_path (0 fresh
 factorization, 1 PCG preconditioned by an earlier step's factorization, 2 PCG gave up and
-the step was factorized), pcg_its (see :class:`ngcontact.newton.IterationRecord`); with --newton other than exact also
+the step was factorized), pcg_its (see :class:`ngcontact.newton.IterationRecord`); with --newton other than direct also
 gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
 3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),
 eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu, ilu_fill_ratio

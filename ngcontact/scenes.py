@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
-from .problems.base import ObstacleProblem, TwoMembraneProblem
+from .problems import ObstacleProblem, TwoMembraneProblem
 
 __all__ = ["Scene", "SceneError", "load_scene", "cases_dir", "list_scenes"]
 

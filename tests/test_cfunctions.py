@@ -56,3 +56,28 @@ def test_get_cfunction_by_name_and_error():
     assert get_cfunction("fb").name == "fb"
     with pytest.raises(ValueError, match="cfun"):
         get_cfunction("max")
+
+
+@pytest.mark.parametrize("cf", CFS, ids=lambda c: c.name)
+def test_row_classes_solve_the_linearized_rows(cf):
+    """classify_rows: any (g', y') that meets the prescriptions of the row classes satisfies the
+    linearized rows C + Ca (g' - g) + Cb (y' - y) = 0 (the reduction every Newton step relies on)."""
+    from ngcontact.algebra.system import classify_rows
+
+    rng = np.random.default_rng(3)
+    g, y = rng.normal(size=400), rng.normal(size=400)
+    g[:50], y[50:100] = 0.0, 0.0  # kinks of min (tie) and FB
+    C, (Ca, Cb) = cf.value(g, y), cf.jacobian(g, y)
+    rc = classify_rows(g, y, C, Ca, Cb)
+    assert np.array_equal(rc.eq | rc.fixed | rc.mixed, np.ones(400, bool))
+    assert not (rc.eq & rc.fixed).any() and not (rc.eq & rc.mixed).any() and not (rc.fixed & rc.mixed).any()
+    if cf.name == "min":
+        assert np.array_equal(rc.eq, g <= y) and not rc.mixed.any()
+    else:
+        assert rc.mixed.sum() > 300 and np.all(rc.w[rc.mixed] >= 0)
+    g_new, y_new = rng.normal(size=400), rng.normal(size=400)
+    g_new[rc.eq] = rc.g_target[rc.eq]
+    y_new[rc.fixed] = rc.y_fixed[rc.fixed]
+    y_new[rc.mixed] = rc.c0[rc.mixed] - rc.w[rc.mixed] * g_new[rc.mixed]
+    lin = C + Ca * (g_new - g) + Cb * (y_new - y)
+    assert np.abs(lin).max() <= 1e-12 * (1 + np.abs(C).max() + np.abs(y_new).max() + np.abs(g_new).max())

@@ -111,7 +111,8 @@ def test_obstacle_solution_stays_above_obstacle(solve_one):
 
 @pytest.mark.parametrize("name", ["ex9_obstacle", "test1"])
 def test_nested_p1_prolongation_equals_the_point_search(name, monkeypatch):
-    """P1 on uniformly refined straight meshes: vertex / edge-midpoint lookup, no point search."""
+    """P1 on uniformly refined straight meshes: the parent table of the structured domains and the
+    vertex / edge-midpoint lookup give the prolongation of the general point search."""
     import ngcontact.discretizations.fem as fem
     from ngcontact.newton.loop import semismooth_newton
 
@@ -120,11 +121,21 @@ def test_nested_p1_prolongation_equals_the_point_search(name, monkeypatch):
     coarse, fine = FEMDiscretization(scene.problem, coarse_mesh), FEMDiscretization(scene.problem, fine_mesh)
     sol = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess))
     pts = fine.nodes.coords[fine.interior]
-    assert fem._nested_p1_values(coarse, pts, np.zeros((1, coarse.fes.ndof))) is not None  # fast path taken
-    x_fast, y_fast = fine.prolongate(coarse, sol.x, sol.y)
+    zeros = np.zeros((1, coarse.fes.ndof))
+    assert fem._parent_p1_values(coarse, fine, zeros) is not None  # the parent table describes these meshes
+    assert fem._nested_p1_values(coarse, pts, zeros) is not None  # every fine node is a vertex or a midpoint
+    searches = []
+    locate = fem._locate
+    monkeypatch.setattr(fem, "_locate", lambda *a: searches.append(1) or locate(*a))
+    x_parent, y_parent = fine.prolongate(coarse, sol.x, sol.y)
+    monkeypatch.setattr(fem, "_parent_p1_values", lambda *a: None)
+    x_nested, y_nested = fine.prolongate(coarse, sol.x, sol.y)
+    assert not searches
     monkeypatch.setattr(fem, "_nested_p1_values", lambda *a: None)
     x_search, y_search = fine.prolongate(coarse, sol.x, sol.y)
-    np.testing.assert_allclose(x_fast, x_search, atol=1e-13)
-    np.testing.assert_allclose(y_fast, y_search, atol=1e-13 * max(1.0, np.abs(y_search).max()))
+    assert searches == [1]  # the reference values come from the point search
+    for x_fast, y_fast in ((x_parent, y_parent), (x_nested, y_nested)):
+        np.testing.assert_allclose(x_fast, x_search, atol=1e-13)
+        np.testing.assert_allclose(y_fast, y_search, atol=1e-13 * max(1.0, np.abs(y_search).max()))
     # a point that is no coarse vertex or edge midpoint: fall back to the search
-    assert fem._nested_p1_values(coarse, pts[:1] + 1e-3 * coarse.problem.domain.h(1), np.zeros((1, coarse.fes.ndof))) is None
+    assert fem._nested_p1_values(coarse, pts[:1] + 1e-3 * coarse.problem.domain.h(1), zeros) is None

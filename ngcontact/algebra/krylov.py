@@ -15,8 +15,7 @@ iterations (and at every stop) the iterate x^{i} is formed, the true residual
 r^{i} = b - A x^{i} computed, and ``monitor(KrylovState)`` called; it may stop
 the iteration (the adaptive criteria of [JSC20] are evaluated there).
 
-Why an own loop rather than a library GMRES (measured, ngsolve 6.2.2608,
-scipy 1.x): ``scipy.sparse.linalg.gmres`` reports only the (preconditioned)
+Why an own loop rather than a library GMRES (ngsolve 6.2.2608, scipy 1.x): ``scipy.sparse.linalg.gmres`` reports only the (preconditioned)
 residual *norm* to its callback, not the iterate, so the algebraic residual
 vector and the a posteriori estimators of X^{k,i} cannot be evaluated every
 nu steps without restarting it (which changes the Krylov space); NGSolve's
@@ -24,13 +23,12 @@ nu steps without restarting it (which changes the Krylov space); NGSolve's
 preconditioner (its preconditioners: Jacobi "local", "bddc", "multigrid",
 "h1amg").  The cost is in the sparse products, the ILU triangular solves (scipy/SuperLU,
 compiled) and the orthogonalization (classical Gram-Schmidt done twice, two
-BLAS-2 products per iteration instead of j BLAS-1 calls of modified GS:
-measured 60 s -> 0.2 s of loop overhead for 5000 iterations at 17k unknowns).
+BLAS-2 products per iteration instead of j BLAS-1 calls of modified GS, so
+the Python loop overhead stays small against the products).
 
-Threads: on a shared 2-core machine OpenBLAS's threaded BLAS-2 kernels made
-the same GMRES solves 10x slower (P1 disk, 19k elements, 14 Newton steps:
-16 s with default threads vs 1.6 s with ``OPENBLAS_NUM_THREADS=1``, load
-average ~7); ``make inexact-study`` therefore sets OPENBLAS_NUM_THREADS=1.
+Threads: on a loaded 2-core machine OpenBLAS's threaded BLAS-2 kernels slow
+these small products down by a large factor; ``make inexact-study``
+therefore sets OPENBLAS_NUM_THREADS=1.
 
 The preconditioner :class:`ILU` is SuperLU's threshold ILU (``spilu``,
 ILUTP) with a small fill (defaults drop_tol=1e-4, fill_factor=2): the

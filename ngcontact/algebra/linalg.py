@@ -1,8 +1,10 @@
-"""Sparse SPD solves: NGSolve's sparse Cholesky on scipy matrices.
+"""Sparse direct solves on scipy matrices: NGSolve's sparse Cholesky (SPD), UMFPACK and SuperLU (general).
 
-NGSOLVE-NOTES.md: sparsecholesky on the reduced SPD Newton system is 5-13x
-faster than scipy's ``splu`` on the 3-field system at 1e5-5e5 dofs/field.
-``scipy`` (SuperLU) is kept as a fallback and for cross-checks.
+The reduced SPD Newton systems are factorized by NGSolve's ``sparsecholesky``
+(much faster than scipy's ``splu`` on the 3-field system, see
+/work/shared/NGSOLVE-NOTES.md); ``scipy`` (SuperLU) is kept as a fallback and
+for cross-checks.  :func:`sparse_solve` also solves non-symmetric systems
+(the dG variants NIPG and IIPG).
 """
 from __future__ import annotations
 
@@ -14,17 +16,20 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["SPDSolver", "FixedPatternCholesky", "SOLVERS", "ngsolve_coo", "pcg", "PCGResult"]
+__all__ = ["SPDSolver", "FixedPatternCholesky", "SOLVERS", "FACTORIZATIONS", "ngsolve_coo", "sparse_solve", "pcg",
+           "PCGResult"]
 
 SOLVERS = ("sparsecholesky", "scipy")
+#: methods of :func:`sparse_solve`
+FACTORIZATIONS = ("sparsecholesky", "umfpack", "splu")
 
 
 def ngsolve_coo(rows, cols, vals, height: int, width: int):
     """NGSolve ``SparseMatrixd`` from COO triplets (duplicates summed).
 
-    ``CreateFromCOO`` converts numpy arguments element by element (~0.4 us per
-    entry, 1 s for 3e6 entries); filling pyngcore arrays through their buffer
-    views first makes the call ~20x faster (measured 1.1 s -> 0.06 s).
+    ``CreateFromCOO`` converts numpy arguments element by element; filling
+    pyngcore arrays through their buffer views first makes the call an order
+    of magnitude faster on millions of entries.
     """
     import pyngcore
     from ngsolve import la
@@ -34,6 +39,24 @@ def ngsolve_coo(rows, cols, vals, height: int, width: int):
     for arr, src in zip(arrays, (rows, cols, vals)):
         np.asarray(arr)[:] = src
     return la.SparseMatrixd.CreateFromCOO(*arrays, height, width)
+
+
+def sparse_solve(A: sp.spmatrix, b: np.ndarray, method: str) -> np.ndarray:
+    """Solve A z = b by one factorization: 'sparsecholesky' (A SPD, NGSolve), 'umfpack' (NGSolve,
+    general) or 'splu' (scipy's SuperLU with the MMD(A^T + A) ordering, general)."""
+    if method not in FACTORIZATIONS:
+        raise ValueError(f"factorization must be 'sparsecholesky', 'umfpack' or 'splu', got {method!r}")
+    if A.shape[0] == 0:
+        return np.zeros(0)
+    if method == "splu":
+        return spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A").solve(np.asarray(b, float))
+    coo = A.tocoo()
+    mat = ngsolve_coo(coo.row, coo.col, coo.data, A.shape[0], A.shape[1])
+    inv = mat.Inverse(inverse=method)
+    rv, sv = mat.CreateRowVector(), mat.CreateColVector()
+    rv.FV().NumPy()[:] = b
+    sv.data = inv * rv
+    return np.array(sv.FV().NumPy())
 
 
 class SPDSolver:
@@ -52,7 +75,7 @@ class SPDSolver:
             self._mat = ngsolve_coo(coo.row, coo.col, coo.data, self.n, self.n)
             from ngsolve import TaskManager
 
-            with TaskManager():  # threaded factorization: 5.2 s instead of 6.5 s at 1.05M unknowns, 2 threads
+            with TaskManager():  # threaded factorization
                 self._inv = self._mat.Inverse(inverse="sparsecholesky")
             self._rhs = self._mat.CreateRowVector()
             self._sol = self._mat.CreateColVector()
@@ -75,18 +98,17 @@ class FixedPatternCholesky:
 
     A matrix of the family is K + diag(d) on the kept unknowns; it is embedded in K's pattern by
     zeroing the rows and columns of the dropped unknowns and putting 1 on their diagonal, so every
-    member has the same pattern and NGSolve's ``SparseCholesky.Update()`` refactors it numerically.
-    Measured on ex9's matrix with 1.05M unknowns (2 threads): first factorization 4.4 s, numeric
-    refactorization 2.0 s (fresh SPDSolver factorization 5.2 s).  Used by
-    :class:`~ngcontact.algebra.system.FactorReuse` for one-sided (obstacle-type) constraints, whose
+    member has the same pattern and NGSolve's ``SparseCholesky.Update()`` refactors it numerically,
+    skipping the symbolic analysis of a fresh factorization.  Used by
+    :class:`~ngcontact.algebra.reuse.FactorReuse` for one-sided (obstacle-type) constraints, whose
     Newton matrices are exactly of this form.
     """
 
     def __init__(self, K: sp.spmatrix):
         K = sp.csr_matrix(K, dtype=float, copy=True)
         K.sum_duplicates()
-        # explicit zeros (P1 stiffness couplings across right angles: 9- instead of 5-point pattern on
-        # ex9's mesh) would be kept as structural nonzeros: 7.0 s instead of 4.2 s at 1.05M unknowns
+        # explicit zeros (P1 stiffness couplings across right angles: a 9- instead of a 5-point pattern on
+        # ex9's mesh) would be kept as structural nonzeros and enlarge the factor
         K.eliminate_zeros()
         K.sort_indices()
         self.n = K.shape[0]

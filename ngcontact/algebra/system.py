@@ -3,7 +3,8 @@
     K x - B^T (D y) = F,
     g(x) = B x - b >= 0,   y >= 0,   g(x) . y = 0,
 
-with K symmetric positive definite (n x n), D > 0 diagonal (m weights) and
+with K symmetric positive definite (n x n; a subclass may admit a
+non-symmetric K and factorize it in ``direct_solve``), D > 0 diagonal (m weights) and
 each constraint row l of B of the form  e_up(l) - e_lo(l)  (two-membrane
 contact: g_l = X1_l - X2_l) or  e_up(l)  (obstacle: g_l = X_l - psi_l).
 This is (DS2) / "Matrix representation" of [CAMWA21]:  x = [X1, X2],
@@ -19,7 +20,12 @@ SPD system:
   * rows with Ca = 0 ("fixed", inactive set): y' is prescribed;
   * rows with both nonzero (Fischer-Burmeister): y' is eliminated and adds
     B^T diag(D Ca/Cb) B >= 0 to K.
-The multiplier on equality rows is recovered from the slave equation.
+The multiplier on equality rows is recovered from the slave equation.  The
+row classes and the prescribed quantities come from :func:`classify_rows`,
+shared with the systems that reduce the step otherwise (the condensed HHO
+system); :meth:`ComplementaritySystem.direct_solve` is the one place a
+subclass changes the factorization (the non-symmetric dG systems).
+Factorization reuse across steps lives in :mod:`.reuse`.
 """
 from __future__ import annotations
 
@@ -30,9 +36,9 @@ from typing import Optional
 import numpy as np
 import scipy.sparse as sp
 
-from .linalg import FixedPatternCholesky, SPDSolver, pcg
+from .linalg import SPDSolver
 
-__all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "FactorReuse", "LINEAR_PATHS"]
+__all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS"]
 
 #: how a Newton step's reduced system was solved (IterationRecord.linear_path is the index)
 LINEAR_PATHS = ("factor", "pcg", "pcg-failed")
@@ -48,8 +54,55 @@ class StepInfo:
 
 
 @dataclass
+class RowClasses:
+    """Classes of the linearized complementarity rows C + Ca (g' - g) + Cb (y' - y) = 0 and what they prescribe.
+
+    ``eq`` (Cb = 0 relative to Ca): g(x') = ``g_target``; ``fixed`` (Ca = 0 relative to Cb):
+    y' = ``y_fixed``; ``mixed`` (both nonzero): y' = ``c0`` - ``w`` g(x'), w = Ca/Cb.  Each
+    prescribed array is zero off its class.
+    """
+
+    eq: np.ndarray
+    fixed: np.ndarray
+    mixed: np.ndarray
+    g_target: np.ndarray
+    y_fixed: np.ndarray
+    w: np.ndarray
+    c0: np.ndarray
+
+
+def classify_rows(g, y, C, Ca, Cb, eps: float = 1e-12) -> RowClasses:
+    """Row classes of the Newton step at the gap ``g`` and multiplier ``y`` (see :class:`RowClasses`).
+
+    ``C``, ``Ca``, ``Cb``: the C-function's value and diagonal generalized Jacobian at (g, y);
+    a derivative counts as zero when it is at most ``eps`` times the other one.
+    """
+    m = len(g)
+    aCa, aCb = np.abs(Ca), np.abs(Cb)
+    eq = aCb <= eps * aCa
+    fixed = ~eq & (aCa <= eps * aCb)
+    mixed = ~eq & ~fixed
+    g_target = np.zeros(m)
+    g_target[eq] = g[eq] - C[eq] / Ca[eq]
+    y_fixed = np.zeros(m)
+    y_fixed[fixed] = y[fixed] - C[fixed] / Cb[fixed]
+    w = np.zeros(m)
+    w[mixed] = Ca[mixed] / Cb[mixed]
+    c0 = np.zeros(m)
+    c0[mixed] = y[mixed] - C[mixed] / Cb[mixed] + w[mixed] * g[mixed]
+    return RowClasses(eq, fixed, mixed, g_target, y_fixed, w, c0)
+
+
+@dataclass
 class ComplementaritySystem:
-    """K x - B^T D y = F with constraints g = B x - b >= 0 (see module doc)."""
+    """K x - B^T D y = F with constraints g = B x - b >= 0 (see module doc).
+
+    ``factor_reuse`` (class attribute) declares that the Newton loop may solve this system's
+    steps through :class:`~ngcontact.algebra.reuse.FactorReuse`: the reduced matrix of
+    :meth:`linearize` is SPD and :meth:`newton_step` is the generic direct solve of it.
+    """
+
+    factor_reuse = True
 
     K: sp.csr_matrix
     F: np.ndarray
@@ -73,7 +126,7 @@ class ComplementaritySystem:
         used = np.concatenate([self.up, self.lo[self.lo >= 0]])
         if len(used) and (used.min() < 0 or used.max() >= n):
             raise ValueError(f"constraint rows must refer to unknowns 0..{n - 1}")
-        if len(used) and np.bincount(used, minlength=n).max() > 1:  # O(n): np.unique sorts (0.4 s at 1M)
+        if len(used) and np.bincount(used, minlength=n).max() > 1:  # O(n), where np.unique would sort
             raise ValueError("each unknown may appear in at most one constraint row")
         has_lo = self.lo >= 0
         rows = np.concatenate([np.arange(m), np.flatnonzero(has_lo)])
@@ -143,15 +196,15 @@ class ComplementaritySystem:
         onto g >= 0 and a node is kept active only if, in addition, the
         multiplier read off the fine residual, y_res = D^-1 (K x - F), pushes
         into the constraint at the scale of K's diagonal:
-        c g <= y_res, c = diag(K)/D.  Measured on ex9 (N = 256 from 128):
-        218 -> 8 misclassified first-step nodes, Newton 4 -> 2 iterations;
-        the converged solution is the same (finite termination).
+        c g <= y_res, c = diag(K)/D.  Only the start changes: the converged
+        solution is the same (finite termination); the Newton counts of the
+        nested obstacle runs (``ex9-p1-balanced`` in tests/data/reference_histories.json,
+        results/bench/BENCH.md) are those of this start.
 
         When every row is one-sided, ``WARM_SWEEPS`` damped projected Jacobi sweeps
         x <- max(b, x + omega diag(K)^-1 (F - K x)) (on the constrained unknowns) first
-        smooth the interpolation error next to the free boundary (one SpMV each):
-        ex9, N = 1024 from 512: 92 -> 60 rows changed by the first step and Newton
-        3 -> 2 iterations (0.13 s for the sweeps); N = 256: 8 -> 4 changed rows.
+        smooth the interpolation error next to the free boundary (one SpMV each), which
+        leaves fewer rows for the first Newton step to change.
         """
         x = np.array(x0, dtype=float)
         y = np.array(y0, dtype=float)
@@ -174,18 +227,22 @@ class ComplementaritySystem:
         y[one] = np.minimum(y[one], y_res / c)
         return x, y
 
-    def newton_step(self, x, y, C, Ca, Cb, eps: float = 1e-12, reuse: "FactorReuse | None" = None):
+    def direct_solve(self, A: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
+        """Solve the reduced system A z = b of a step by a fresh factorization (A SPD: ``self.solver``)."""
+        return SPDSolver(A, self.solver).solve(b)
+
+    def newton_step(self, x, y, C, Ca, Cb, eps: float = 1e-12, reuse=None):
         """New iterate (x', y') of the linearized system; see the module docstring.
 
-        With ``reuse`` (one :class:`FactorReuse` per Newton run on this system)
-        the reduced system may be solved by PCG preconditioned with an earlier
-        step's factorization; otherwise it is factorized from scratch.
+        With ``reuse`` (a :class:`~ngcontact.algebra.reuse.FactorReuse`; only where
+        ``factor_reuse``) the reduced system may be solved by PCG preconditioned with an
+        earlier step's factorization; otherwise by :meth:`direct_solve`.
         """
         t0 = time.perf_counter()
         lin = self.linearize(x, y, C, Ca, Cb, eps)
         t1 = time.perf_counter()
         if reuse is None:
-            z, path, its = SPDSolver(lin.A, self.solver).solve(lin.b), "factor", 0
+            z, path, its = self.direct_solve(lin.A, lin.b), "factor", 0
         else:
             z, path, its = reuse.solve(lin, z0=lin.restrict(x))
         t2 = time.perf_counter()
@@ -195,26 +252,12 @@ class ComplementaritySystem:
     def linearize(self, x, y, C, Ca, Cb, eps: float = 1e-12) -> "LinearizedStep":
         """The reduced SPD system A z = b of the Newton step (module docstring) and the map z -> (x', y').
 
-        Used by :meth:`newton_step` (direct solve) and by the inexact Newton
-        driver (:mod:`ngcontact.newton.inexact`, Krylov solve).
+        Used by :meth:`newton_step` (direct solve or factorization reuse) and by the
+        inexact Newton driver (:mod:`ngcontact.newton.inexact`, Krylov solve).
         """
-        n, m = self.n, self.m
-        g = self.gap(x)
-        aCa, aCb = np.abs(Ca), np.abs(Cb)
-        eq = aCb <= eps * aCa
-        fixed = ~eq & (aCa <= eps * aCb)
-        mixed = ~eq & ~fixed
-
-        # prescribed quantities
-        g_target = np.zeros(m)
-        g_target[eq] = g[eq] - C[eq] / Ca[eq]
-        y_fixed = np.zeros(m)
-        y_fixed[fixed] = y[fixed] - C[fixed] / Cb[fixed]
-        # mixed rows: y' = c0 - w g(x'), w = Ca/Cb >= 0
-        w = np.zeros(m)
-        w[mixed] = Ca[mixed] / Cb[mixed]
-        c0 = np.zeros(m)
-        c0[mixed] = y[mixed] - C[mixed] / Cb[mixed] + w[mixed] * g[mixed]
+        n = self.n
+        rc = classify_rows(self.gap(x), y, C, Ca, Cb, eps)
+        eq, fixed, mixed, g_target, y_fixed, w, c0 = rc.eq, rc.fixed, rc.mixed, rc.g_target, rc.y_fixed, rc.w, rc.c0
 
         # right-hand side and matrix of the x-equation (before elimination)
         rhs = self.F + self._B.T @ (self.D * np.where(fixed, y_fixed, 0.0))
@@ -245,7 +288,7 @@ class ComplementaritySystem:
 
         bred = Z.T @ (rhs - Kaug @ x_aff)
         # A = Z^T Kaug Z is formed on first use (the fixed-pattern factorization of FactorReuse does not
-        # need it: 0.2 s per step at 1M unknowns)
+        # need it)
         return LinearizedStep(self, None, bred, Z, x_aff, keep, eq, mixed, y_fixed, c0, w,
                               eq_rows, slaves, slave_is_lo, _Kaug=Kaug)
 
@@ -305,154 +348,3 @@ class LinearizedStep:
             sign = np.where(self.slave_is_lo, -1.0, 1.0)
             y_new[self.eq_rows] = r[self.slaves] / (sign * s.D[self.eq_rows])
         return x_new, y_new
-
-
-class _KeptSolve:
-    """Reduced solve A z = b through a full-length :class:`~ngcontact.algebra.linalg.FixedPatternCholesky`."""
-
-    def __init__(self, fixed: FixedPatternCholesky, keep: np.ndarray):
-        self.fixed, self.keep = fixed, keep
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        full = np.zeros(self.fixed.n)
-        full[self.keep] = b
-        return self.fixed.solve(full)[self.keep]
-
-
-class FactorReuse:
-    """Solves the reduced systems of successive Newton steps on one system, reusing a factorization.
-
-    The reduced matrix A = Z^T (K + B_m^T diag(D w) B_m) Z of a step is
-    determined by K and, row by row, by the class of each constraint row
-    (equality / fixed / mixed) and the weight w of mixed rows.  When these
-    differ from those of the last *factorized* step in at most
-    ``max_changed`` rows, A differs from the factorized A_f by a low-rank
-    term, and A z = b is solved by PCG with the SPD preconditioner
-
-        M^{-1} = P^T A_f^{-1} P + Q^T diag(A)^{-1} Q,
-
-    P: reduced unknowns (of this step) that were also reduced unknowns of
-    the factorized step -> their positions there (zero padding elsewhere);
-    Q: selection of the unknowns that are new in this step (Jacobi on them).
-    M^{-1} is block diagonal with blocks (A_f^{-1})_cc (a principal block of
-    an SPD matrix) and a positive diagonal, hence SPD, and M - A has rank
-    O(#changed rows) (Schur complement onto the common unknowns, rank-2
-    couplings of new unknowns, rank-2 master updates of eliminated slaves),
-    so CG ends in O(#changed) iterations.  It runs to ``||b - A z|| <= rtol
-    ||b||`` on the true residual, or to the rounding floor of a direct solve
-    (:func:`~ngcontact.algebra.linalg.pcg`), i.e. to direct-solver accuracy: the
-    exact-Newton iterates are unchanged up to rounding.  (rtol = 1e-12 was
-    not enough: the estimators' flux reconstruction inherits the residual,
-    and its normal-continuity test failed at 7e-12; rtol = 1e-15 because
-    the floor stops PCG anyway where rounding dominates.)  If PCG does not
-    converge within ``maxiter`` iterations or ``time_fraction`` times the
-    time the reused factorization took (only when that was >= TIME_CAP_FROM
-    seconds, so that small systems take deterministic paths), the step is
-    factorized afresh (and that factorization is kept for the next steps).
-
-    Cost model (measured, 2 threads, 5-point Laplacian with 1.05M unknowns):
-    factorization 5.4 s, one solve with the factor 0.4 s, so a PCG iteration
-    costs ~1/13 of a factorization; ex9 needed 2-9 PCG iterations for 0-16
-    changed rows.  Hence the defaults: PCG only for <= 64 changed rows, and
-    an attempt never costs more than one more factorization.
-
-    One-sided constraints (obstacle problem, the w-problem of the decoupled
-    membranes): every Newton matrix is K + diag on the kept unknowns, so
-    factorizations are numeric refactorizations in K's pattern with one
-    symbolic analysis per system (:class:`~ngcontact.algebra.linalg.FixedPatternCholesky`,
-    ``fixed_pattern``), about half the cost of a fresh one; PCG is then tried
-    for <= 16 changed rows only and capped at the cost of a refactorization.
-    """
-
-    #: the time cap applies only if the reused factorization took at least this long [s]
-    TIME_CAP_FROM = 0.5
-
-    #: fixed-pattern mode: a numeric refactorization costs about this fraction of the first
-    #: (symbolic + numeric) factorization (measured 0.44-0.62 on the 1.05M-unknown Laplacian)
-    NUMERIC_FRACTION = 0.5
-
-    def __init__(self, system: "ComplementaritySystem", max_changed: int | None = None, maxiter: int = 60,
-                 rtol: float = 1e-15, time_fraction: float | None = 1.0, fixed_pattern: bool | None = None,
-                 fixed: FixedPatternCholesky | None = None):
-        self.system = system
-        # one-sided constraints (obstacle, decoupled membranes): every Newton matrix is K + diag on the
-        # kept unknowns, refactorized in K's pattern with one symbolic analysis (FixedPatternCholesky)
-        if fixed_pattern is None:
-            fixed_pattern = system.solver == "sparsecholesky" and bool(np.all(system.lo < 0))
-        self.fixed_pattern = bool(fixed_pattern) and bool(np.all(system.lo < 0))
-        # a refactorization being cheaper there, PCG is tried for fewer changed rows (ex9, N = 512:
-        # 24 changed rows took 9 PCG iterations, 1.6 s, against ~0.9 s for refactorization + solve)
-        if max_changed is None:
-            max_changed = 16 if self.fixed_pattern else 64
-        self.max_changed, self.maxiter, self.rtol, self.time_fraction = max_changed, maxiter, rtol, time_fraction
-        # FixedPatternCholesky of K (created at the first factorization, or given: symbolic analysis reused)
-        self._fixed = fixed if self.fixed_pattern else None
-        self._symbolic_in_t_factor = False
-        self._solver = None  # SPDSolver of the factorized step
-        self._rows = None  # (eq, mixed, w) of the factorized step
-        self._index = None  # full indices of its reduced unknowns
-        self._t_factor = 0.0
-
-    def changed_rows(self, lin: "LinearizedStep") -> int | None:
-        """Constraint rows whose contribution to A differs from the factorized step (None: nothing to reuse)."""
-        if self._solver is None or lin.system is not self.system:
-            return None
-        eq0, mixed0, w0 = self._rows
-        diff = (lin.eq != eq0) | (lin.mixed != mixed0) | (lin.mixed & (lin.w != w0))
-        return int(diff.sum())
-
-    def solve(self, lin: "LinearizedStep", z0: np.ndarray | None = None):
-        """(z, path, PCG iterations) for A z = b of ``lin``; see the class docstring for ``path``."""
-        changed = self.changed_rows(lin)
-        path, its = "factor", 0
-        if changed is not None and changed <= self.max_changed:
-            t0 = time.perf_counter()
-            deadline = None  # time cap only where it matters: deterministic paths on small systems
-            if self.time_fraction is not None and self._t_factor >= self.TIME_CAP_FROM:
-                t_next = self._t_factor * (self.NUMERIC_FRACTION if self._symbolic_in_t_factor else 1.0)
-                deadline = t0 + self.time_fraction * t_next
-            res = pcg(lin.A, lin.b, self._preconditioner(lin), z0, rtol=self.rtol, maxiter=self.maxiter,
-                      deadline=deadline)
-            its = res.iterations
-            if res.converged:
-                return res.x, "pcg", its
-            path = "pcg-failed"
-        self._solver = None  # free the old factor first: never two factors in memory
-        t0 = time.perf_counter()
-        if self.fixed_pattern:
-            self._symbolic_in_t_factor = self._fixed is None or self._fixed.factorizations == 0
-            self._solver = self._factor_fixed(lin)
-        else:
-            self._solver = SPDSolver(lin.A, self.system.solver)
-        self._t_factor = time.perf_counter() - t0
-        self._rows = (lin.eq.copy(), lin.mixed.copy(), lin.w.copy())
-        self._index = np.flatnonzero(lin.keep)
-        return self._solver.solve(lin.b), path, its
-
-    def _factor_fixed(self, lin: "LinearizedStep"):
-        """Numeric refactorization in K's pattern; returns an object solving the reduced system."""
-        s = self.system
-        if self._fixed is None:
-            self._fixed = FixedPatternCholesky(s.K)
-        d = np.zeros(s.n)
-        if lin.mixed.any():  # B_m^T diag(D w) B_m: diagonal for one-sided rows
-            np.add.at(d, s.up[lin.mixed], (s.D * lin.w)[lin.mixed])
-        self._fixed.factor(lin.keep, d)
-        return _KeptSolve(self._fixed, lin.keep.copy())
-
-    def _preconditioner(self, lin: "LinearizedStep"):
-        index = np.flatnonzero(lin.keep)
-        _, new_pos, old_pos = np.intersect1d(index, self._index, assume_unique=True, return_indices=True)
-        fresh = np.ones(len(index), dtype=bool)
-        fresh[new_pos] = False
-        dinv = np.where(fresh, 1.0 / np.where(fresh, lin.A.diagonal(), 1.0), 0.0)
-        n_old, solver = len(self._index), self._solver
-
-        def apply(r):
-            v = np.zeros(n_old)
-            v[old_pos] = r[new_pos]
-            out = dinv * r
-            out[new_pos] = solver.solve(v)[old_pos]
-            return out
-
-        return apply

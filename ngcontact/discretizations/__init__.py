@@ -1,9 +1,11 @@
 """Discretizations: turn problem data + mesh into a complementarity system.
 
-Each class takes ``(problem, mesh, order=..., solver=...)`` and exposes
-``system`` (:class:`~ngcontact.algebra.system.ComplementaritySystem`),
-``ndof``, ``initial_guess``, ``prolongate``, ``gridfunctions``, ``errors``,
-``complementarity``, ``contact_points`` and ``time_assembly``.
+Each class takes ``(problem, mesh, order=..., solver=...)`` and provides what
+:class:`~ngcontact.discretizations.base.Discretization` declares: ``system``
+(:class:`~ngcontact.algebra.system.ComplementaritySystem`), ``ndof``,
+``n_interior``, ``ndof_sc``, ``time_assembly``, ``time_condense``,
+``estimable``, ``initial_guess``, ``prolongate``, ``gridfunctions``,
+``errors``, ``complementarity``, ``contact_points``.
 
 Registry keys are the CLI's ``--disc`` values:
 
@@ -11,6 +13,7 @@ Registry keys are the CLI's ``--disc`` values:
 * ``hho``  -- hybrid high-order with static condensation (:mod:`.hho`);
 * ``sipg``, ``nipg``, ``iipg`` -- interior penalty dG, theta = 1, -1, 0 (:mod:`.dg`).
 """
+from .base import Discretization
 from .dg import DGDiscretization
 from .fem import FEMDiscretization
 from .hho import HHODiscretization
@@ -36,4 +39,4 @@ DISCRETIZATIONS = {
     "iipg": _dg_variant("iipg"),
 }
 
-__all__ = ["DISCRETIZATIONS", "FEMDiscretization", "HHODiscretization", "DGDiscretization"]
+__all__ = ["DISCRETIZATIONS", "Discretization", "FEMDiscretization", "HHODiscretization", "DGDiscretization"]

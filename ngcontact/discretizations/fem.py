@@ -18,7 +18,6 @@ field and g = X - psi.
 from __future__ import annotations
 
 import time
-from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
@@ -26,22 +25,17 @@ from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integr
                      dx, grad)
 
 from ..algebra.system import ComplementaritySystem
-from .lagrange import LagrangeNodes, meshpoints
-from ..problems.base import ProblemDataError, check_data_on_points, data_fields
 from ..domains import DIRICHLET
+from ..problems.base import check_data_on_points
+from .base import Discretization, assemble_load, evaluate_at_points, scipy_csr
+from .lagrange import LagrangeNodes, meshpoints
 
 __all__ = ["FEMDiscretization"]
 
 
-def _csr(bf_or_mat) -> sp.csr_matrix:
-    mat = getattr(bf_or_mat, "mat", bf_or_mat)
-    data, indices, indptr = mat.CSR()  # views: copy before the form goes away
-    return sp.csr_matrix((np.array(data), np.array(indices), np.array(indptr)), shape=(mat.height, mat.width))
-
-
 def _block_diag_csr(blocks) -> sp.csr_matrix:
     """blockdiag of CSR matrices by concatenating their arrays (scipy's block_diag goes through
-    COO: 0.8 s at 1M unknowns, this ~0.05 s)."""
+    COO, much slower on large matrices)."""
     blocks = [sp.csr_matrix(B) for B in blocks]
     if len(blocks) == 1:
         return blocks[0]
@@ -54,7 +48,7 @@ def _block_diag_csr(blocks) -> sp.csr_matrix:
     return sp.csr_matrix((np.concatenate(data), np.concatenate(indices), np.concatenate(indptr)), shape=(r, c))
 
 
-class FEMDiscretization:
+class FEMDiscretization(Discretization):
     """Conforming P_p discretization of a two-membrane or obstacle problem on one mesh.
 
     Parameters
@@ -70,12 +64,14 @@ class FEMDiscretization:
 
     name = "fem"
     orders = (1, 2, 3, 4)
+    estimable = True
 
     def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6):
-        if order not in (1, 2, 3, 4):
+        if order not in self.orders:
             raise ValueError(f"order must be 1, 2, 3 or 4 for fem, got {order!r}")
         t0 = time.perf_counter()
         self.problem, self.mesh, self.order, self.quad_bonus = problem, mesh, order, quad_bonus
+        self._mass = self._mass_lu = None  # nodal mass matrix and its LU factors, built on first use
         if getattr(problem.domain, "curved", False) and order > 1:
             mesh.Curve(order)
         self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
@@ -86,51 +82,39 @@ class FEMDiscretization:
         ni = len(self.interior)
 
         # data at the nodes, checked once
-        data = {name: nodes.evaluate(cf) for name, cf in data_fields(problem).items()}
+        data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()}
         check_data_on_points(problem, data, ~free, nodes.coords)
 
         u, v = fes.TnT()
         with TaskManager():
             S = BilinearForm(grad(u) * grad(v) * dx).Assemble()
             ones = LinearForm(v * dx).Assemble()
-        self.S = nodes.transform(_csr(S))
+        self.S = nodes.transform(scipy_csr(S))
         Sii = self.S[self.interior][:, self.interior]
         Sib = self.S[self.interior][:, self.boundary]
         # D: lumped weights (psi_a, 1) for p = 1, identity (dual basis) for p >= 2
         self.D = (nodes.T.T @ ones.vec.FV().NumPy())[self.interior] if order == 1 else np.ones(ni)
 
-        if problem.kind == "membranes":
-            loads, dirichlet = (problem.f1, problem.f2), ("g1", "g2")
-        else:
-            loads, dirichlet = (problem.f,), ("g",)
         self.lift = []  # nodal Dirichlet values of each field (zero inside)
         F = []
-        for mu, f, gname in zip(problem.mus, loads, dirichlet):
+        for mu, f, gname in zip(problem.mus, problem.loads, problem.dirichlet_names):
             Fn = nodes.T.T @ self._load(f, v)
             gb = np.zeros(fes.ndof)
             gb[self.boundary] = data[gname][self.boundary]
             self.lift.append(gb)
             F.append(Fn[self.interior] - mu * (Sib @ gb[self.boundary]))
-        self.nfields = len(F)
+        self.nfields = problem.nfields
         K = _block_diag_csr([mu * Sii for mu in problem.mus])
-        if problem.kind == "membranes":
+        if problem.obstacle is None:  # u1 - u2 >= 0
             up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
-        else:
-            up, lo, b = np.arange(ni), -np.ones(ni, dtype=np.int64), data["psi"][self.interior]
+        else:  # u - psi >= 0
+            up, lo, b = np.arange(ni), -np.ones(ni, dtype=np.int64), data["psi"][self.interior]  # psi of problem.data()
         self.system = ComplementaritySystem(K, np.concatenate(F), up, lo, b, self.D, solver=solver)
         self.time_assembly = time.perf_counter() - t0
 
     def _load(self, f, v) -> np.ndarray:
         """(f, phi_i) for the hierarchical basis; zero for an identically zero f."""
-        try:
-            lf = LinearForm(f * v * dx(bonus_intorder=self.quad_bonus))
-            with TaskManager():
-                lf.Assemble()
-        except Exception as exc:  # NGSolve folds 0 * v away: "Linearform must have TestFunction"
-            if "TestFunction" not in str(exc):
-                raise
-            return np.zeros(self.fes.ndof)
-        return np.array(lf.vec.FV().NumPy())
+        return assemble_load(self.fes, lambda: f * v * dx(bonus_intorder=self.quad_bonus))
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -141,6 +125,11 @@ class FEMDiscretization:
     def ndof(self) -> int:
         """DOFs as counted in [CAMWA21]: (fields + multiplier) x interior Lagrange nodes."""
         return (self.nfields + 1) * self.n_interior
+
+    @property
+    def constraint_points(self) -> np.ndarray:
+        """Coordinates of the interior Lagrange nodes (one constraint row each)."""
+        return self.nodes.coords[self.interior]
 
     # --------------------------------------------------------- initial guesses
     def initial_guess(self, fields=None):
@@ -156,7 +145,7 @@ class FEMDiscretization:
         """Nested iteration: interpolate a coarser level's solution at this level's nodes."""
         ni = self.n_interior
         pts = self.nodes.coords[self.interior]
-        names = ["u1", "u2"][: self.nfields] if self.nfields == 2 else ["u"]
+        names = list(self.problem.field_names)
         if self.order == 1 and previous.order == 1:  # nested P1 meshes: no point search needed
             nodal = previous.nodal_fields(x, y)
             stacked = np.stack([nodal[n] for n in names + ["lam"]])
@@ -181,18 +170,17 @@ class FEMDiscretization:
 
     # ------------------------------------------------------------ postprocess
     def mass_nodal(self) -> sp.csr_matrix:
-        if not hasattr(self, "_mass"):
+        if self._mass is None:
             u, v = self.fes.TnT()
             M = BilinearForm(u * v * dx).Assemble()
-            self._mass = self.nodes.transform(_csr(M))
+            self._mass = self.nodes.transform(scipy_csr(M))
         return self._mass
 
     def nodal_fields(self, x, y) -> dict:
         """Nodal values (all nodes, boundary included) of u_a and lam_h."""
         ni = self.n_interior
         out = {}
-        names = ["u1", "u2"] if self.nfields == 2 else ["u"]
-        for a, name in enumerate(names):
+        for a, name in enumerate(self.problem.field_names):
             X = self.lift[a].copy()
             X[self.interior] = x[a * ni:(a + 1) * ni]
             out[name] = X
@@ -206,7 +194,7 @@ class FEMDiscretization:
 
     def mass_nodal_lu(self):
         """LU factors of :meth:`mass_nodal` (factorized once: every Newton iterate and estimate reuses them)."""
-        if not hasattr(self, "_mass_lu"):
+        if self._mass_lu is None:
             import scipy.sparse.linalg as spla
 
             self._mass_lu = spla.splu(self.mass_nodal().tocsc())
@@ -219,10 +207,7 @@ class FEMDiscretization:
             gf = GridFunction(self.fes, name=name)
             gf.vec.FV().NumPy()[:] = self.nodes.T @ X
             out[name] = gf
-        if self.nfields == 2:
-            out["gap"] = out["u1"] - out["u2"]
-        else:
-            out["gap"] = out["u"] - self.problem.psi
+        out["gap"] = self.problem.gap([out[name] for name in self.problem.field_names])
         return out
 
     def errors(self, x, y) -> dict:
@@ -232,32 +217,22 @@ class FEMDiscretization:
             return {}
         gfs = self.gridfunctions(x, y)
         nodal = self.nodal_fields(x, y)
-        names = ["u1", "u2"] if self.nfields == 2 else ["u"]
         e2, emax = 0.0, 0.0
         order = 2 * self.order + self.quad_bonus
-        for a, (name, mu) in enumerate(zip(names, self.problem.mus)):
+        for a, (name, mu) in enumerate(zip(self.problem.field_names, self.problem.mus)):
             d = ex.gradient(a + 1) - grad(gfs[name])
             e2 += mu * Integrate(InnerProduct(d, d), self.mesh, order=order)
             exact_nodal = self.nodes.evaluate(ex.u1 if a == 0 else ex.u2)
             emax = max(emax, float(np.max(np.abs(exact_nodal - nodal[name]))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
-    def contact_points(self, x, y) -> np.ndarray:
-        """Coordinates (k, 2) of the nodes in the discrete contact set (gap <= X3)."""
-        return self.nodes.coords[self.interior][self.system.gap(x) <= y]
-
-    def complementarity(self, x, y) -> dict:
-        """Discrete complementarity at the nodes: min gap, min X3, max |gap * X3|."""
-        g = self.system.gap(x)
-        return {"gap_min": float(g.min(initial=0.0)), "lam_min": float(y.min(initial=0.0)),
-                "product_max": float(np.max(np.abs(g * y), initial=0.0))}
 
 
 def _parent_p1_values(previous, fine, values):
     """P1 interpolant of nodal ``values`` (k x coarse nodes) at ``fine``'s interior nodes from the
     parent table ``fine.mesh.ngc_parents`` of structured domains (``domains._BoxDomain.meshes``),
     or None (no table, or it does not describe these two meshes: checked on the coordinates,
-    bitwise).  ex9, 1M nodes: ~0.05 s instead of ~0.8 s for :func:`_nested_p1_values`."""
+    bitwise).  Cheaper than the coordinate matching of :func:`_nested_p1_values`."""
     par = getattr(fine.mesh, "ngc_parents", None)
     if par is None or fine.fes.ndof != fine.mesh.nv or previous.fes.ndof != previous.mesh.nv \
             or par.shape != (fine.mesh.nv, 2) or par.max(initial=0) >= previous.mesh.nv:
@@ -278,8 +253,7 @@ def _nested_p1_values(previous, pts, values):
     nodal values.  Points are matched bitwise against those coordinates
     (midpoints computed as 0.5 * (a + b), as the refinements do); if any
     point does not match (curved boundary, another refinement), None and the
-    caller searches the points.  ex9, 1M points: ~0.5 s instead of ~8 s for
-    the TriFinder of :func:`_locate`.
+    caller searches the points (:func:`_locate`, much slower on large meshes).
     """
     P = previous.nodes.coords
     T = previous.mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
@@ -307,9 +281,9 @@ def _nested_p1_values(previous, pts, values):
 def _locate(mesh, pts):
     """MeshPoints of ``pts`` in a straight-sided triangular mesh, or None if some point is outside.
 
-    NGSolve's ``mesh(xs, ys)`` searches point by point (8.6 s for 2.6e5 points
-    in a 1.3e5-triangle mesh); matplotlib's trapezoid-map TriFinder plus
-    barycentric coordinates does the same in ~0.4 s.  NGSolve's reference
+    NGSolve's ``mesh(xs, ys)`` searches point by point; matplotlib's
+    trapezoid-map TriFinder plus barycentric coordinates does the same much
+    faster on large meshes.  NGSolve's reference
     triangle has vertices (1,0), (0,1), (0,0), so the local coordinates are
     the first two barycentric coordinates.
     """
@@ -335,13 +309,4 @@ def _evaluate_at(mesh, cf, pts, mp=None) -> np.ndarray:
     points outside the (curved) mesh get the value 0."""
     if mp is not None:
         return np.asarray(cf(mp)).reshape(-1)
-    try:
-        return np.asarray(cf(mesh(pts[:, 0], pts[:, 1]))).reshape(-1)
-    except Exception:  # some point outside: fall back to one point at a time
-        vals = np.zeros(len(pts))
-        for i, (px, py) in enumerate(pts):
-            try:
-                vals[i] = cf(mesh(px, py))
-            except Exception:
-                vals[i] = 0.0
-        return vals
+    return evaluate_at_points(mesh, cf, pts)

@@ -20,8 +20,8 @@ Discretisation
     G_K in P_p(K; R^2) tested with every q in P_p(K; R^2)
     (``reconstruction='full'``): then q.n has degree p on the edges, the
     unprojected degree-p mode of u - Pi^{p-1}_F u enters G_K, and the method
-    is not exact on P_p; measured on test 1 it converges like h^{p-1} only
-    (rates 1.2 for p = 2, 2.1 for p = 3 at T3), so it is kept for comparison.
+    is not exact on P_p (tests/test_hho.py) and converges like h^{p-1} only
+    on test 1; it is kept for comparison.
     Dirichlet data: the boundary face unknowns are the L2 projection of g_a
     on P_{p-1}(F).
 
@@ -41,7 +41,8 @@ Implementational aspects
     Element matrices are computed by batched numpy on affine triangles
     (reference quadrature of NGSolve), data are evaluated with
     ``mesh.MapToAllElements``; output as NGSolve ``L2`` GridFunctions.
-    ``condense=True`` (default) gives :class:`CondensedHHOSystem`, whose
+    ``condense=True`` (default) gives
+    :class:`~ngcontact.discretizations.condensed.CondensedHHOSystem`, whose
     semismooth Newton step eliminates the cell unknowns and lam cell by cell
     for the current active set (every iteration) and solves for the face
     unknowns only; ``condense=False`` solves the full system with the generic
@@ -63,13 +64,11 @@ import scipy.sparse as sp
 from numpy.polynomial import legendre
 from ngsolve import SEGM, TRIG
 
-from ..algebra.system import ComplementaritySystem, StepInfo
-from ..algebra.linalg import SPDSolver
-from ..algebra.linalg import ngsolve_coo
-from .dg import BrokenLagrange, _quadrature
-from ..domains import INTERFACE
+from ..algebra.system import ComplementaritySystem
+from .broken import BrokenDiscretization, BrokenLagrange, _quadrature
+from .condensed import CondensedHHOSystem
 
-__all__ = ["HHODiscretization", "CondensedHHOSystem"]
+__all__ = ["HHODiscretization", "CondensedHHOSystem", "hho_element_matrices"]
 
 
 def _face_basis(p: int, s) -> np.ndarray:
@@ -135,7 +134,7 @@ def hho_element_matrices(B: BrokenLagrange, reconstruction: str = "potential") -
     return AG + stab
 
 
-class HHODiscretization:
+class HHODiscretization(BrokenDiscretization):
     """HHO (cells P_p, faces P_{p-1}) for the two-membrane problem (module doc).
 
     Parameters
@@ -164,17 +163,12 @@ class HHODiscretization:
 
     def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", condense: bool = True,
                  reconstruction: str = "potential", quad_bonus: int = 6):
-        if order not in self.orders:
-            raise ValueError(f"order must be 1, 2, 3 or 4 for hho, got {order!r}")
-        if getattr(problem, "kind", None) != "membranes":
-            raise ValueError(f"hho supports the two-membrane problem only, got {type(problem).__name__}")
-        if INTERFACE in mesh.GetBoundaries():
-            raise ValueError("hho: meshes with an internal '{}' curve (e.g. UnitDisk(interface_radius=...)) "
-                             "are supported by disc fem only".format(INTERFACE))
+        self._check_setting("hho", problem, mesh, order)
         t0 = time.perf_counter()
         self.problem, self.mesh, self.order, self.condense = problem, mesh, order, bool(condense)
-        self.quad_bonus, self.reconstruction = quad_bonus, reconstruction
+        self.quad_bonus, self.reconstruction, self.nfields = quad_bonus, reconstruction, problem.nfields
         self.basis = B = BrokenLagrange(mesh, order)
+        self._check_data()
         p, nc, ne = order, B.nc, B.ne
         self.A_loc = A = hho_element_matrices(B, reconstruction)
         nl = nc + 3 * p
@@ -196,7 +190,7 @@ class HHODiscretization:
         psi = _face_basis(p, s)
         self.g_loc = []  # per field, local boundary face values (ne, 3p), 0 on interior faces
         bmask = B.bnd_edge[B.cell_edges]  # (ne, 3)
-        for gd in (problem.g1, problem.g2):
+        for gd in problem.dirichlet:
             gvals = B.edge_evaluate(gd, s)  # (ne, 3, ns)
             gF = np.einsum("kes,s,sj->kej", gvals, ws, psi) * bmask[:, :, None]
             self.g_loc.append(gF.reshape(ne, 3 * p))
@@ -210,7 +204,7 @@ class HHODiscretization:
         quad = 2 * p + quad_bonus
         mu1, mu2 = problem.mus
         F = []
-        for a, (mu, f) in enumerate(zip((mu1, mu2), (problem.f1, problem.f2))):
+        for a, (mu, f) in enumerate(zip((mu1, mu2), problem.loads)):
             Fa = np.zeros(n1)
             Fa[:ncell] = B.load(f, quad).ravel()
             lift = -mu * np.einsum("kij,kj->ki", A[:, :, nc:], self.g_loc[a])  # -mu A_{., bnd} g
@@ -241,15 +235,21 @@ class HHODiscretization:
 
     @property
     def ndof_sc(self) -> int:
-        """[CAMWA21] count after static condensation: u1, u2 on interior faces."""
+        """[CAMWA21] count after static condensation: u1, u2 on interior faces (with or without
+        ``condense``: a count of the method, as in the DOF tables of [CAMWA21])."""
         return 2 * self.nFi * self.order
+
+    @property
+    def constraint_points(self) -> np.ndarray:
+        """Coordinates of the cell nodes (every cell node carries a constraint row)."""
+        return self.basis.coords.reshape(-1, 2)
 
     @property
     def timings(self) -> dict:
         """Seconds accumulated by the condensed Newton steps: 'condense' (cell eliminations and
         face right-hand side), 'solve' (face matrix, Cholesky, triangular solves),
         'recover' (cell values and X3), 'steps'.  Empty without condensation."""
-        return dict(getattr(self.system, "timings", {}))
+        return dict(self.system.timings) if self.condense else {}
 
     @property
     def time_condense(self) -> float:
@@ -290,15 +290,8 @@ class HHODiscretization:
     def prolongate(self, previous, x, y):
         """Nested iteration: the coarse cell polynomials at this mesh's cell nodes (exact on
         nested meshes), faces from the cell traces, X3 = moments of the coarse lam_h."""
-        B = self.basis
-        fields = previous.broken_fields(x, y) if hasattr(previous, "broken_fields") else None
-        if fields is not None and isinstance(fields[0], BrokenLagrange):
-            Bc, (U1, U2, lam) = fields
-            U1, U2, lam = (B.transfer_from(Bc, v) for v in (U1, U2, lam))
-        else:  # another kind of discretization: evaluate its GridFunctions
-            gfs = previous.gridfunctions(x, y)
-            U1, U2, lam = (B.values_from(previous.mesh, gfs[n]) for n in ("u1", "u2", "lam"))
-        return self._assemble_x(U1, U2), B.nodal_to_dual(lam).ravel()
+        U1, U2, lam = self._coarse_fields(previous, x, y)
+        return self._assemble_x(U1, U2), self.basis.nodal_to_dual(lam).ravel()
 
     def broken_fields(self, x, y):
         """(basis, (U1, U2, lam)): nodal values per cell of u1K, u2K and lam_h."""
@@ -307,10 +300,9 @@ class HHODiscretization:
     # ------------------------------------------------------------ postprocess
     def gridfunctions(self, x, y) -> dict:
         """L2 GridFunctions of the cell unknowns u1, u2, of lam_h = sum_l X3_l Theta_l, and gap = u1 - u2."""
-        B = self.basis
-        out = {"u1": B.gridfunction(self._cells(x, 0), "u1"), "u2": B.gridfunction(self._cells(x, 1), "u2"),
-               "lam": B.gridfunction(B.dual_to_nodal(y), "lam")}
-        out["gap"] = out["u1"] - out["u2"]
+        B, fields = self.broken_fields(x, y)
+        out = {name: B.gridfunction(X, name) for name, X in zip(self.problem.field_names + ("lam",), fields)}
+        out["gap"] = self.problem.gap([out["u1"], out["u2"]])
         return out
 
     def errors(self, x, y) -> dict:
@@ -330,267 +322,3 @@ class HHODiscretization:
             e2 += mu * float(np.einsum("k,q,kqc->", B.detJ, w, d * d))
             emax = max(emax, float(np.abs(B.interpolate(uex) - U).max()))
         return {"err_energy": float(np.sqrt(e2)), "err_max_nodal": emax}
-
-    def contact_points(self, x, y) -> np.ndarray:
-        """Coordinates (k, 2) of the cell nodes in the discrete contact set (gap <= X3)."""
-        return self.basis.coords.reshape(-1, 2)[self.system.gap(x) <= y]
-
-    def complementarity(self, x, y) -> dict:
-        """Min gap, min X3, max |gap * X3| over the cell nodes."""
-        g = self.system.gap(x)
-        return {"gap_min": float(g.min(initial=0.0)), "lam_min": float(y.min(initial=0.0)),
-                "product_max": float(np.max(np.abs(g * y), initial=0.0))}
-
-
-class CondensedHHOSystem(ComplementaritySystem):
-    """HHO complementarity system whose Newton step is solved on the face unknowns only.
-
-    Per cell K the linearized equations (module doc of
-    :mod:`ngcontact.algebra.system`) couple the cell values X^C_1, X^C_2 of
-    both fields and X3|_K through the C-function rows of the cell's nodes only.
-    They are eliminated cell by cell for the current active set:
-
-    * cells without equality (active) or mixed (Fischer-Burmeister) rows:
-      X3 is prescribed and the fields decouple; the local inverse of
-      mu_a A_CC is the same every step (computed once), only the right-hand
-      side changes;
-    * the other cells: in the variables s = X^C_1, d = X^C_1 - X^C_2 the
-      constraints read g = d (b = 0); d is prescribed on active rows, mixed
-      rows add w to the d-diagonal; the symmetric (2 nc x 2 nc) cell block is
-      inverted (batched numpy) and its Schur complement on the cell's
-      2 x 3p face unknowns computed.
-
-    The face system (SPD, 2 * p * #interior faces) is solved by sparse
-    Cholesky; cell values and X3 are recovered cell by cell (active rows:
-    X3_l = (mu1 (A_CC X1 + A_CF X1F) - F1)_l).  ``timings`` accumulates the
-    seconds spent in condensation, linear solve and recovery.
-    """
-
-    def setup(self, A, ldofs, nc, p, mu1, mu2):
-        """Cell-local data: element matrices A (ne, nl, nl), local-to-global dofs of one field."""
-        ne = A.shape[0]
-        self.nc, self.p, self.mu = nc, p, (mu1, mu2)
-        self.n1 = self.n // 2
-        self.ncell = ne * nc
-        fd = ldofs[:, nc:]
-        bnd = fd < 0
-        Acc = A[:, :nc, :nc]
-        Acf = np.where(bnd[:, None, :], 0.0, A[:, :nc, nc:])  # boundary faces: known, already in F
-        Aff = np.where(bnd[:, None, :] | bnd[:, :, None], 0.0, A[:, nc:, nc:])
-        self.Acc, self.Acf = Acc, Acf
-        self.Acc_inv = np.linalg.inv(Acc)
-        self.AccinvAcf = self.Acc_inv @ Acf
-        S0 = Aff - np.swapaxes(Acf, 1, 2) @ self.AccinvAcf  # field-wise condensed cell matrix
-        self.S0 = S0
-        nf = self.n1 - self.ncell  # face unknowns of one field
-        self.nf = nf
-        fg = np.where(bnd, -1, fd - self.ncell)  # face-only numbering of field 1
-        self.fg = np.concatenate([fg, np.where(bnd, -1, fg + nf)], axis=1)  # (ne, 6p) both fields
-        # the active-set independent part: blockdiag(mu1 S0, mu2 S0) over all cells
-        rows, cols, vals = [], [], []
-        for a, mu in enumerate((mu1, mu2)):
-            g = np.where(bnd, -1, fg + a * nf)
-            r, c, v = _coo(g, mu * S0)
-            rows.append(r), cols.append(c), vals.append(v)
-        self.face_solver = _FaceCholesky(2 * nf, np.concatenate(rows), np.concatenate(cols), np.concatenate(vals),
-                                         self.fg, self.solver)
-        # coupled cell blocks in (s, d): x1 = s, x2 = s - d
-        self.Kzz = np.block([[(mu1 + mu2) * Acc, -mu2 * Acc], [-mu2 * Acc, mu2 * Acc]])
-        self.Kzf = np.block([[mu1 * Acf, mu2 * Acf], [np.zeros_like(Acf), -mu2 * Acf]])
-        self.Kff = np.block([[mu1 * Aff, np.zeros_like(Aff)], [np.zeros_like(Aff), mu2 * Aff]])
-        self.timings = {"condense": 0.0, "solve": 0.0, "recover": 0.0, "steps": 0}
-
-    def newton_step(self, x, y, C, Ca, Cb, eps: float = 1e-12):
-        t0 = time.perf_counter()
-        nc, ne, n1, ncell, nf = self.nc, self.ncell // self.nc, self.n1, self.ncell, self.nf
-        mu1, mu2 = self.mu
-        if np.any(self.D != 1.0) or np.any(self.b != 0.0):
-            raise ValueError("CondensedHHOSystem expects D = I and b = 0")
-        g = self.gap(x)
-        aCa, aCb = np.abs(Ca), np.abs(Cb)
-        eq = aCb <= eps * aCa
-        fixed = ~eq & (aCa <= eps * aCb)
-        mixed = ~eq & ~fixed
-        safe = lambda den, mask: np.where(mask, den, 1.0)  # noqa: E731
-        yfix = np.where(fixed, y - C / safe(Cb, fixed), 0.0)
-        w = np.where(mixed, Ca / safe(Cb, mixed), 0.0)
-        c0 = np.where(mixed, y - C / safe(Cb, mixed) + w * g, 0.0)
-        t = np.where(eq, g - C / safe(Ca, eq), 0.0)  # prescribed d = x1 - x2 on equality rows
-        EQ, MX = eq.reshape(ne, nc), mixed.reshape(ne, nc)
-        YF, W, C0, T = (v.reshape(ne, nc) for v in (yfix, w, c0, t))
-        F1C = self.F[:ncell].reshape(ne, nc)
-        F2C = self.F[n1:n1 + ncell].reshape(ne, nc)
-        rf = np.concatenate([self.F[ncell:n1], self.F[n1 + ncell:]])  # face loads (with lifting)
-
-        coupled = (EQ | MX).any(axis=1)
-        dec = np.flatnonzero(~coupled)
-        cpl = np.flatnonzero(coupled)
-        # decoupled cells: mu_a (A_CC X_a + A_CF X_aF) = r_a, r1 = F1 + y, r2 = F2 - y
-        r1, r2 = F1C[dec] + YF[dec], F2C[dec] - YF[dec]
-        fg = self.fg
-        p3 = fg.shape[1] // 2
-        for a, r in enumerate((r1, r2)):
-            contrib = -np.einsum("kji,kj->ki", self.AccinvAcf[dec], r)  # -A_FC A_CC^{-1} r_a
-            idx = fg[dec][:, a * p3:(a + 1) * p3]
-            ok = idx >= 0
-            np.add.at(rf, idx[ok], contrib[ok])
-        # coupled cells
-        if len(cpl):
-            Kzz = self.Kzz[cpl].copy()
-            Kzf = self.Kzf[cpl].copy()
-            eqc, mxc = EQ[cpl], MX[cpl]
-            dd = nc + np.arange(nc)
-            Kzz[:, dd, dd] += W[cpl]
-            rz = np.concatenate([F1C[cpl] + F2C[cpl],
-                                 -F2C[cpl] + YF[cpl] + np.where(mxc, C0[cpl], 0.0)], axis=1)
-            tv = np.zeros((len(cpl), 2 * nc))
-            tv[:, nc:] = np.where(eqc, T[cpl], 0.0)
-            rz -= np.einsum("kij,kj->ki", Kzz, tv)
-            rfl = -np.einsum("kij,ki->kj", Kzf, tv)
-            keep = np.ones((len(cpl), 2 * nc))
-            keep[:, nc:] = ~eqc
-            Kzz *= keep[:, :, None] * keep[:, None, :]
-            Kzz[:, np.arange(2 * nc), np.arange(2 * nc)] += 1.0 - keep
-            rz = np.where(keep > 0, rz, tv)
-            Kzf *= keep[:, :, None]
-            Kinv = np.linalg.inv(Kzz)
-            KinvKzf = Kinv @ Kzf
-            Kinv_rz = np.einsum("kij,kj->ki", Kinv, rz)
-            Sc = self.Kff[cpl] - np.swapaxes(Kzf, 1, 2) @ KinvKzf
-            rfl -= np.einsum("kij,ki->kj", Kzf, Kinv_rz)
-            idx = fg[cpl]
-            ok = idx >= 0
-            np.add.at(rf, idx[ok], rfl[ok])
-            # correction of the base matrix on coupled cells
-            base = np.zeros_like(Sc)
-            base[:, :p3, :p3] = mu1 * self.S0[cpl]
-            base[:, p3:, p3:] = mu2 * self.S0[cpl]
-            correction = Sc - base
-        else:
-            correction = np.zeros((0, 2 * p3, 2 * p3))
-        t1 = time.perf_counter()
-        self.face_solver.factor(cpl, correction)
-        phi = self.face_solver.solve(rf)
-        t2 = time.perf_counter()
-
-        # recovery
-        x_new = np.empty(self.n)
-        x_new[ncell:n1] = phi[:nf]
-        x_new[n1 + ncell:] = phi[nf:]
-        phi_ext = np.concatenate([phi, [0.0]])
-        phil = phi_ext[np.where(fg >= 0, fg, len(phi))]  # (ne, 6p), 0 on boundary faces
-        X1 = np.empty((ne, nc))
-        X2 = np.empty((ne, nc))
-        for a, (r, X, mu) in enumerate(((r1, X1, mu1), (r2, X2, mu2))):
-            X[dec] = np.einsum("kij,kj->ki", self.Acc_inv[dec], r / mu) - np.einsum(
-                "kij,kj->ki", self.AccinvAcf[dec], phil[dec][:, a * p3:(a + 1) * p3])
-        Y = YF.copy()
-        if len(cpl):
-            z = Kinv_rz - np.einsum("kij,kj->ki", KinvKzf, phil[cpl])
-            X1[cpl] = z[:, :nc]
-            X2[cpl] = z[:, :nc] - z[:, nc:]
-            Y[cpl] = np.where(mxc, C0[cpl] - W[cpl] * z[:, nc:], Y[cpl])
-            # active rows: X3 = mu1 (A_CC X1 + A_CF X1F) - F1 (row of field 1)
-            r_eq = mu1 * (np.einsum("kij,kj->ki", self.Acc[cpl], X1[cpl])
-                          + np.einsum("kij,kj->ki", self.Acf[cpl], phil[cpl][:, :p3])) - F1C[cpl]
-            Y[cpl] = np.where(eqc, r_eq, Y[cpl])
-        x_new[:ncell] = X1.ravel()
-        x_new[n1:n1 + ncell] = X2.ravel()
-        t3 = time.perf_counter()
-        tm = self.timings
-        tm["condense"] += t1 - t0
-        tm["solve"] += t2 - t1
-        tm["recover"] += t3 - t2
-        tm["steps"] += 1
-        return x_new, Y.ravel(), StepInfo(len(rf), (t1 - t0) + (t3 - t2), t2 - t1)
-
-
-class _FaceCholesky:
-    """Sparse Cholesky of the condensed face system S = S_base + sum over coupled cells of their corrections.
-
-    S_base (both fields, decoupled) never changes; the coupled cells change with
-    the active set.  The sparsity pattern (S_base plus the full face blocks of a
-    set U of cells) is kept while the coupled cells stay inside U (and U is not
-    much larger): the values are then written into the existing NGSolve matrix
-    and the factorization is redone by ``Update()`` (no new ordering, no new
-    matrix).
-    ``solver='scipy'`` uses scipy's SuperLU on a scipy matrix instead.
-    """
-
-    def __init__(self, n, rows, cols, vals, fg, solver):
-        self.n, self.fg, self.solver = n, fg, solver
-        self.base_keys, inv = np.unique(rows.astype(np.int64) * n + cols, return_inverse=True)
-        self.base_vals = np.bincount(inv.ravel(), weights=vals, minlength=len(self.base_keys))
-        self.cells = None  # bool mask U of the cells whose blocks are in the pattern
-        self.rebuilds = 0
-
-    def _local_keys(self, cells):
-        idx = self.fg[cells]
-        r = np.broadcast_to(idx[:, :, None], idx.shape + idx.shape[1:]).astype(np.int64)
-        c = np.broadcast_to(idx[:, None, :], r.shape)
-        return np.where((r >= 0) & (c >= 0), r * self.n + c, -1)  # (len(cells), k, k)
-
-    def _build(self, U):
-        cells = np.flatnonzero(U)
-        local = self._local_keys(cells)
-        keys = _sorted_unique(np.concatenate([self.base_keys, local[local >= 0]]))
-        self.keys, self.cells = keys, U.copy()
-        self.data_base = np.zeros(len(keys))
-        self.data_base[np.searchsorted(keys, self.base_keys)] = self.base_vals
-        self.slot = np.full(len(U), -1, dtype=np.int64)
-        self.slot[cells] = np.arange(len(cells))
-        self.pos = np.where(local >= 0, np.searchsorted(keys, local), -1)  # (|U|, k, k) data positions
-        rows, cols = keys // self.n, keys % self.n
-        self.indptr = np.searchsorted(rows, np.arange(self.n + 1))
-        self.cols = cols
-        self.inv = None
-        self.rebuilds += 1
-        if self.solver == "sparsecholesky":
-            self.mat = ngsolve_coo(rows, cols, self.data_base, self.n, self.n)
-            data, indices, indptr = self.mat.CSR()
-            self.view = np.asarray(data)  # a view: values are written here before Update()
-            if not (np.array_equal(np.asarray(indices), cols) and np.array_equal(np.asarray(indptr), self.indptr)):
-                raise RuntimeError("NGSolve reordered the sparse matrix entries")
-            self.rhs, self.sol = self.mat.CreateRowVector(), self.mat.CreateColVector()
-
-    def factor(self, cells, blocks):
-        """Factorize S_base + the correction blocks (len(cells), k, k) of the coupled cells."""
-        mask = np.zeros(len(self.fg), dtype=bool)
-        mask[cells] = True
-        if self.cells is None or (mask & ~self.cells).any() or self.cells.sum() > 2 * mask.sum() + 64:
-            self._build(mask)
-        data = self.data_base.copy()
-        if len(cells):
-            pos = self.pos[self.slot[cells]]
-            ok = pos >= 0
-            data += np.bincount(pos[ok], weights=blocks[ok], minlength=len(data))
-        if self.solver == "sparsecholesky":
-            self.view[:] = data
-            if self.inv is None:
-                self.inv = self.mat.Inverse(inverse="sparsecholesky")
-            else:
-                self.inv.Update()
-        else:
-            A = sp.csr_matrix((data, self.cols, self.indptr), shape=(self.n, self.n))
-            self.inv = SPDSolver(A, self.solver)
-
-    def solve(self, b):
-        if self.solver != "sparsecholesky":
-            return self.inv.solve(b)
-        self.rhs.FV().NumPy()[:] = b
-        self.sol.data = self.inv * self.rhs
-        return np.array(self.sol.FV().NumPy())
-
-
-def _sorted_unique(a: np.ndarray) -> np.ndarray:
-    """np.unique by sorting (numpy's hash-based unique is several times slower on 1e7 int64)."""
-    a = np.sort(a)
-    return a[np.concatenate([[True], a[1:] != a[:-1]])] if len(a) else a
-
-
-def _coo(idx: np.ndarray, blocks: np.ndarray):
-    """COO triplets of local blocks (ne, k, k) scattered by idx (ne, k); entries with idx < 0 dropped."""
-    r = np.broadcast_to(idx[:, :, None], blocks.shape)
-    c = np.broadcast_to(idx[:, None, :], blocks.shape)
-    ok = (r >= 0) & (c >= 0)
-    return r[ok], c[ok], blocks[ok]

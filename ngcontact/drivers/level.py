@@ -145,7 +145,7 @@ def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = 
     est_cols = out.estimate.summary() if out.estimate is not None else {}
     times = dict(times or {})
     row = {"level": level, "nelem": disc.mesh.ne, "h": h, "ndof": disc.ndof,
-           **({"ndof_sc": disc.ndof_sc} if _declared(disc, "ndof_sc") is not None else {}),
+           **({"ndof_sc": disc.ndof_sc} if disc.ndof_sc is not None else {}),
            "nodes": disc.n_interior, **(head or {}), **out.errors,
            "newton_its": sol.iterations, "newton_converged": int(sol.converged), "res_final": sol.history[-1].res,
            **(balance_columns(sol) if options.newton_stop == "balanced" else {}),
@@ -156,15 +156,10 @@ def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = 
            "time_mesh_s": times.pop("time_mesh_s", 0.0), **times,
            "time_assembly_s": disc.time_assembly, "time_prolong_s": out.time_prolong,
            "time_solve_s": out.time_solve, "time_linear_s": sol.time_linear,
-           **({"time_condense_s": disc.time_condense} if _declared(disc, "time_condense") is not None else {}),
+           **({"time_condense_s": disc.time_condense} if disc.time_condense is not None else {}),
            "time_post_s": out.time_post, **est_cols,
            **({"time_estimate_s": out.time_estimate} if out.estimate is not None else {})}
     return row
-
-
-def _declared(disc, name):
-    # TODO(layout): plain attribute access once every discretization declares ndof_sc / time_condense
-    return getattr(disc, name, None)
 
 
 def update_rates(rows: List[dict], h_key) -> None:

@@ -65,12 +65,7 @@ def _cache_of(disc) -> dict:
 
 def _field_layout(problem, nfields: int):
     """(names, loads, Dirichlet data) of the problem's fields."""
-    if hasattr(problem, "loads"):
-        return tuple(problem.field_names), tuple(problem.loads), tuple(problem.dirichlet)
-    # TODO(layout): remove when problems declare field_names / loads / dirichlet
-    if nfields == 2:
-        return ("u1", "u2"), (problem.f1, problem.f2), (problem.g1, problem.g2)
-    return ("u",), (problem.f,), (problem.g,)
+    return tuple(problem.field_names), tuple(problem.loads), tuple(problem.dirichlet)
 
 
 @dataclass(frozen=True, eq=False)

@@ -40,7 +40,8 @@ from typing import List
 import numpy as np
 
 from ..algebra.krylov import ILU, KrylovState, gmres
-from ..algebra.system import LINEAR_PATHS, ComplementaritySystem, FactorReuse
+from ..algebra.reuse import FactorReuse
+from ..algebra.system import LINEAR_PATHS
 from .base import IterationRecord, option_error
 from .stopping import stop_linear
 
@@ -74,13 +75,8 @@ class DirectSolve:
     record_type = IterationRecord
 
     def start(self, system, estimates):
-        reuse = FactorReuse(system, fixed=self.fixed) if self.reuse and _factor_reuse(system) else None
+        reuse = FactorReuse(system, fixed=self.fixed) if self.reuse and system.factor_reuse else None
         return _DirectSession(system, reuse)
-
-
-def _factor_reuse(system) -> bool:
-    # TODO(layout): system.factor_reuse once the algebra layer declares it
-    return getattr(system, "factor_reuse", type(system).newton_step is ComplementaritySystem.newton_step)
 
 
 class _DirectSession:

@@ -1,6 +1,8 @@
-"""Problem data: two membranes, obstacle; exact solutions; data checks."""
-from .base import (ExactSolution, ObstacleProblem, ProblemDataError, TwoMembraneProblem, check_data_on_points,
+"""Problem data: the declared problem interface, two membranes, obstacle; exact solutions; data checks."""
+from .base import (BoundaryOrder, ContactProblem, ExactSolution, Problem, ProblemDataError, check_data_on_points,
                    data_fields)
+from .membranes import TwoMembraneProblem
+from .obstacle import ObstacleProblem
 
-__all__ = ["ExactSolution", "ObstacleProblem", "ProblemDataError", "TwoMembraneProblem", "check_data_on_points",
-           "data_fields"]
+__all__ = ["BoundaryOrder", "ContactProblem", "ExactSolution", "ObstacleProblem", "Problem", "ProblemDataError",
+           "TwoMembraneProblem", "check_data_on_points", "data_fields"]

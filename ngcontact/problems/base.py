@@ -1,39 +1,31 @@
-"""Problem data: what is solved, independent of any finite element space.
+"""What every contact problem declares, exact solutions and the checks of problem data.
 
-Two problems share one algebra:
+Two problems share one algebra (:mod:`.membranes`, :mod:`.obstacle`)::
 
-* :class:`TwoMembraneProblem` -- contact between two membranes ([JSC20], [CAMWA21])::
+    -mu_a Lap u_a - s_a lam = f_a  in Omega,  u_a = g_a on the boundary  (a = 1..nfields),
+    gap >= 0,  lam >= 0,  gap lam = 0,
 
-      -mu1 Lap u1 - lam = f1,   -mu2 Lap u2 + lam = f2   in Omega,
-      u1 - u2 >= 0,  lam >= 0,  (u1 - u2) lam = 0          in Omega,
-      u1 = g1, u2 = g2 on the boundary  (g1 >= g2).
-
-* :class:`ObstacleProblem` -- one membrane above an obstacle psi::
-
-      -mu Lap u - lam = f,  u - psi >= 0,  lam >= 0,  (u - psi) lam = 0,  u = g on the boundary.
+with ``gap = u1 - u2`` and signs (s_1, s_2) = (+1, -1) for two membranes, and
+``gap = u - psi``, s = +1 for one membrane above an obstacle psi.  A
+discretization reads only the attributes documented in :class:`Problem`.
 
 Data are NGSolve CoefficientFunctions (numbers are converted), so expressions
-in ``x``, ``y`` with ``IfPos``, ``sqrt``, ... work.  Instances are frozen and
+in ``x``, ``y`` with ``IfPos``, ``sqrt``, ... work.  Problems are frozen and
 validated on construction; checks that need points of the domain (finite
-data, g1 >= g2 and psi <= g on the boundary) run once a mesh exists, through
-:func:`check_data_on_points`.
+data; the boundary order g1 >= g2, respectively g >= psi) run once a
+discretization has its points, through :func:`check_data_on_points`.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
-from typing import Optional
+from dataclasses import dataclass
+from typing import Dict, Optional, Protocol, Sequence, Tuple
 
 import numpy as np
 from ngsolve import CoefficientFunction
 
-__all__ = [
-    "ProblemDataError",
-    "ExactSolution",
-    "TwoMembraneProblem",
-    "ObstacleProblem",
-    "check_data_on_points",
-]
+__all__ = ["ProblemDataError", "ExactSolution", "Problem", "ContactProblem", "BoundaryOrder",
+           "check_data_on_points", "data_fields"]
 
 
 class ProblemDataError(ValueError):
@@ -100,100 +92,122 @@ class ExactSolution:
 
 
 @dataclass(frozen=True)
-class TwoMembraneProblem:
-    """Contact between two membranes (model problem of [JSC20], [CAMWA21]).
+class BoundaryOrder:
+    """The data pair that must satisfy ``upper >= lower`` on the boundary, else the admissible set
+    is empty; ``message`` says so in the error."""
 
-    Parameters
+    upper: str
+    lower: str
+    message: str
+
+
+class Problem(Protocol):
+    """The problem interface the discretizations and estimators read.
+
+    Attributes
     ----------
     domain : ngcontact.domains.Domain
         where the problem lives (gives the meshes).
-    f1, f2 : CoefficientFunction or float
-        loads of membranes 1 and 2.
-    g1, g2 : CoefficientFunction or float
-        Dirichlet data, g1 >= g2 on the boundary (checked on the mesh).
-    mu1, mu2 : float
-        tensions, > 0.
-    exact : ExactSolution, optional
-        exact (u1, u2, lam) for error computation.
+    exact : ExactSolution or None
     name : str
         label used in outputs.
+    nfields : int
+        number of unknown fields (2 membranes, 1 obstacle).
+    field_names : tuple of str
+        ``("u1", "u2")`` or ``("u",)``: names of the solution fields in outputs.
+    mus, loads, dirichlet : tuples, one entry per field
+        tensions mu_a > 0, loads f_a and Dirichlet data g_a (CoefficientFunctions).
+    signs : tuple of int
+        s_a in -mu_a Lap u_a - s_a lam = f_a.
+    obstacle : CoefficientFunction or None
+        psi of the constraint u - psi >= 0; None for u1 - u2 >= 0.
+    dirichlet_names : tuple of str
+        names of the Dirichlet data (they need to be finite on the boundary only).
+    boundary_order : BoundaryOrder
+        the pair checked on the boundary: (g1, g2) or (g, psi).
     """
 
     domain: object
-    f1: CoefficientFunction
-    f2: CoefficientFunction
-    g1: CoefficientFunction = 0.0
-    g2: CoefficientFunction = 0.0
-    mu1: float = 1.0
-    mu2: float = 1.0
-    exact: Optional[ExactSolution] = None
-    name: str = "two-membrane"
+    exact: Optional[ExactSolution]
+    name: str
+    nfields: int
+    field_names: Tuple[str, ...]
+    mus: Tuple[float, ...]
+    loads: Tuple[CoefficientFunction, ...]
+    dirichlet: Tuple[CoefficientFunction, ...]
+    signs: Tuple[int, ...]
+    obstacle: Optional[CoefficientFunction]
+    dirichlet_names: Tuple[str, ...]
+    boundary_order: BoundaryOrder
 
-    kind = "membranes"
-    fields_ = ("u1", "u2")
+    def data(self) -> Dict[str, CoefficientFunction]:
+        """Every datum by name: loads, Dirichlet data, obstacle (the fields :func:`check_data_on_points` checks)."""
 
-    def __post_init__(self):
-        object.__setattr__(self, "mu1", _positive(self.mu1, "TwoMembraneProblem.mu1"))
-        object.__setattr__(self, "mu2", _positive(self.mu2, "TwoMembraneProblem.mu2"))
-        _convert_cfs(self, ["f1", "f2", "g1", "g2"])
-        _check_domain(self)
-        if self.exact is not None and not isinstance(self.exact, ExactSolution):
-            raise ProblemDataError(f"TwoMembraneProblem.exact must be an ExactSolution, got {type(self.exact).__name__}")
-        if self.exact is not None and self.exact.u2 is None:
-            raise ProblemDataError("TwoMembraneProblem.exact.u2 is missing (both u1 and u2 are needed)")
-
-    @property
-    def mus(self) -> tuple:
-        return (self.mu1, self.mu2)
+    def gap(self, fields: Sequence) -> CoefficientFunction:
+        """The constrained quantity (u1 - u2, or u - psi) of the given field values."""
 
 
-@dataclass(frozen=True)
-class ObstacleProblem:
-    """Obstacle problem: one membrane u >= psi (seed, "Motivation").
+class ContactProblem:
+    """Shared implementation of :class:`Problem` for the dataclasses of :mod:`.membranes` and :mod:`.obstacle`.
 
-    Same algebra as :class:`TwoMembraneProblem` with one field: the
-    constraint u - psi >= 0 replaces u1 - u2 >= 0.
+    A subclass declares ``field_names``, ``load_names``, ``dirichlet_names``, ``signs``,
+    ``boundary_order`` and defines ``mus``
+    and ``obstacle``.
     """
 
-    domain: object
-    psi: CoefficientFunction
-    f: CoefficientFunction = 0.0
-    g: CoefficientFunction = 0.0
-    mu: float = 1.0
-    exact: Optional[ExactSolution] = None
-    name: str = "obstacle"
-
-    kind = "obstacle"
-    fields_ = ("u",)
-
-    def __post_init__(self):
-        object.__setattr__(self, "mu", _positive(self.mu, "ObstacleProblem.mu"))
-        _convert_cfs(self, ["psi", "f", "g"])
-        _check_domain(self)
-        if self.exact is not None and not isinstance(self.exact, ExactSolution):
-            raise ProblemDataError(f"ObstacleProblem.exact must be an ExactSolution, got {type(self.exact).__name__}")
+    field_names: Tuple[str, ...] = ()
+    load_names: Tuple[str, ...] = ()
+    dirichlet_names: Tuple[str, ...] = ()
+    signs: Tuple[int, ...] = ()
+    boundary_order: BoundaryOrder
+    obstacle: Optional[CoefficientFunction] = None
 
     @property
-    def mus(self) -> tuple:
-        return (self.mu,)
+    def nfields(self) -> int:
+        return len(self.field_names)
 
+    @property
+    def loads(self) -> tuple:
+        return tuple(getattr(self, n) for n in self.load_names)
 
-def _check_domain(problem) -> None:
-    dom = problem.domain
-    if not (hasattr(dom, "mesh") and hasattr(dom, "meshes")):
-        raise ProblemDataError(
-            f"{type(problem).__name__}.domain must be an ngcontact domain (e.g. CrissCrossSquare()), "
-            f"got {type(dom).__name__}"
-        )
+    @property
+    def dirichlet(self) -> tuple:
+        return tuple(getattr(self, n) for n in self.dirichlet_names)
+
+    def data(self) -> Dict[str, CoefficientFunction]:
+        """Every datum by name: loads, Dirichlet data, then the obstacle psi if any."""
+        out = {n: getattr(self, n) for n in self.load_names + self.dirichlet_names}
+        if self.obstacle is not None:
+            out["psi"] = self.obstacle
+        return out
+
+    def gap(self, fields: Sequence) -> CoefficientFunction:
+        """u1 - u2 (two membranes) or u - psi (obstacle) of the given field values."""
+        return fields[0] - (fields[1] if self.obstacle is None else self.obstacle)
+
+    def _validate(self, tensions: Sequence[str], cfs: Sequence[str]) -> None:
+        """Checks of ``__post_init__``: positive tensions, data converted to CFs, a domain, the exact solution's type."""
+        cls = type(self).__name__
+        for name in tensions:
+            object.__setattr__(self, name, _positive(getattr(self, name), f"{cls}.{name}"))
+        _convert_cfs(self, cfs)
+        dom = self.domain
+        if not (hasattr(dom, "mesh") and hasattr(dom, "meshes")):
+            raise ProblemDataError(
+                f"{cls}.domain must be an ngcontact domain (e.g. CrissCrossSquare()), got {type(dom).__name__}"
+            )
+        if self.exact is not None and not isinstance(self.exact, ExactSolution):
+            raise ProblemDataError(f"{cls}.exact must be an ExactSolution, got {type(self.exact).__name__}")
 
 
 def check_data_on_points(problem, values: dict, boundary: np.ndarray, coords: np.ndarray, tol: float = 1e-12) -> None:
-    """Checks that need the domain: finite data, g1 >= g2 / psi <= g on the boundary.
+    """Checks that need the domain: finite data, ``problem.boundary_order`` (g1 >= g2 / psi <= g) on the boundary.
 
     Parameters
     ----------
+    problem : Problem
     values : dict name -> ndarray
-        data evaluated at the points (names as the problem's fields).
+        data evaluated at the points (names as in ``problem.data()``).
     boundary : bool ndarray
         which points lie on the Dirichlet boundary.
     coords : ndarray (n, 2)
@@ -202,29 +216,24 @@ def check_data_on_points(problem, values: dict, boundary: np.ndarray, coords: np
     cls = type(problem).__name__
     for name, val in values.items():
         # Dirichlet data only matter on the boundary (e.g. -A log r is -inf at r = 0)
-        where = boundary if name in ("g", "g1", "g2") else np.ones(len(val), dtype=bool)
+        where = boundary if name in problem.dirichlet_names else np.ones(len(val), dtype=bool)
         bad = where & ~np.isfinite(val)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise ProblemDataError(
                 f"{cls}.{name} is not finite at ({coords[i, 0]:.4g}, {coords[i, 1]:.4g}): {val[i]}"
             )
-    if problem.kind == "membranes":
-        gap = values["g1"] - values["g2"]
-        what = "g1 < g2 on the boundary (empty admissible set: u1 - u2 >= 0 is impossible)"
-    else:
-        gap = values["g"] - values["psi"]
-        what = "obstacle psi above the Dirichlet data g on the boundary (empty admissible set)"
+    order = problem.boundary_order
+    gap = values[order.upper] - values[order.lower]
     scale = tol * max(1.0, float(np.max(np.abs(gap[boundary]))) if boundary.any() else 1.0)
     bad = boundary & (gap < -scale)
     if bad.any():
         i = int(np.flatnonzero(bad)[np.argmin(gap[bad])])
         raise ProblemDataError(
-            f"{cls}: {what}; at ({coords[i, 0]:.4g}, {coords[i, 1]:.4g}) the difference is {gap[i]:.3e}"
+            f"{cls}: {order.message}; at ({coords[i, 0]:.4g}, {coords[i, 1]:.4g}) the difference is {gap[i]:.3e}"
         )
 
 
 def data_fields(problem) -> dict:
-    """Name -> CoefficientFunction of every datum (for evaluation and checks)."""
-    names = ["f1", "f2", "g1", "g2"] if problem.kind == "membranes" else ["f", "g", "psi"]
-    return {n: getattr(problem, n) for n in names}
+    """Name -> CoefficientFunction of every datum (``problem.data()``), for evaluation and checks."""
+    return problem.data()

@@ -1,0 +1,142 @@
+"""What every discretization declares: the :class:`Discretization` base class, and small shared helpers.
+
+A discretization turns problem data (:class:`~ngcontact.problems.base.Problem`)
+and a mesh into an algebraic complementarity system
+(:class:`~ngcontact.algebra.system.ComplementaritySystem`) and maps its
+solution vectors (x, y) back to fields, errors and reports.  Callers read the
+attributes and methods documented here and never probe with ``hasattr``.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Optional, Tuple
+
+import numpy as np
+import scipy.sparse as sp
+from ngsolve import LinearForm, TaskManager
+
+__all__ = ["Discretization", "scipy_csr", "assemble_load", "evaluate_at_points"]
+
+
+class Discretization(ABC):
+    """Base class of the discretizations (FEM, HHO, dG).
+
+    Class attributes
+    ----------------
+    name : str
+        registry key (``fem``, ``hho``, ``sipg``, ``nipg``, ``iipg``).
+    orders : tuple of int
+        supported polynomial orders.
+    estimable : bool
+        a posteriori estimators (:mod:`ngcontact.estimators`) exist for it (FEM only).
+
+    Attributes set by the constructor
+    ---------------------------------
+    problem : Problem
+    mesh : ngsolve.Mesh
+    order : int
+    nfields : int
+        unknown fields (``problem.nfields``).
+    system : ComplementaritySystem
+        the algebraic system; its rows are the constraint rows of :attr:`constraint_points`.
+    time_assembly : float
+        seconds spent by the constructor.
+
+    Sizes and timings
+    -----------------
+    ndof, n_interior : int
+        DOFs as counted in [CAMWA21]; number of constraint rows (``system.m``).
+    ndof_sc : int or None
+        DOFs after static condensation (HHO), else None.
+    time_condense : float or None
+        seconds of static condensation and recovery in the Newton steps so far (HHO), else None.
+    """
+
+    name: str = "abstract"
+    orders: Tuple[int, ...] = ()
+    estimable: bool = False
+    ndof_sc: Optional[int] = None
+    time_condense: Optional[float] = None
+
+    problem: object
+    mesh: object
+    order: int
+    nfields: int
+    system: object
+    time_assembly: float
+
+    @property
+    @abstractmethod
+    def ndof(self) -> int:
+        """DOFs as counted in [CAMWA21]."""
+
+    @property
+    @abstractmethod
+    def n_interior(self) -> int:
+        """Number of constraint rows."""
+
+    @property
+    @abstractmethod
+    def constraint_points(self) -> np.ndarray:
+        """Coordinates (n_interior, 2) of the points of the constraint rows."""
+
+    @abstractmethod
+    def initial_guess(self, fields=None):
+        """(x0, y0) from CoefficientFunctions per field (None: zero), y0 = 0."""
+
+    @abstractmethod
+    def prolongate(self, previous: "Discretization", x, y):
+        """Nested iteration: (x0, y0) on this level from a coarser level's solution (x, y)."""
+
+    @abstractmethod
+    def errors(self, x, y) -> dict:
+        """Errors against ``problem.exact`` ({} without an exact solution): at least 'err_energy'."""
+
+    @abstractmethod
+    def gridfunctions(self, x, y) -> dict:
+        """Named solution fields: ``problem.field_names``, 'lam' and 'gap' (GridFunctions or CFs)."""
+
+    def contact_points(self, x, y) -> np.ndarray:
+        """Coordinates (k, 2) of the constraint points in the discrete contact set (gap <= X3)."""
+        return self.constraint_points[self.system.gap(x) <= y]
+
+    def complementarity(self, x, y) -> dict:
+        """Discrete complementarity over the constraint rows: min gap, min X3, max |gap * X3|."""
+        g = self.system.gap(x)
+        return {"gap_min": float(g.min(initial=0.0)), "lam_min": float(y.min(initial=0.0)),
+                "product_max": float(np.max(np.abs(g * y), initial=0.0))}
+
+
+def scipy_csr(bf_or_mat) -> sp.csr_matrix:
+    """scipy copy of an assembled NGSolve form's (or a sparse matrix's) CSR arrays."""
+    mat = getattr(bf_or_mat, "mat", bf_or_mat)
+    data, indices, indptr = mat.CSR()  # views: copy before the form goes away
+    return sp.csr_matrix((np.array(data), np.array(indices), np.array(indptr)), shape=(mat.height, mat.width))
+
+
+def assemble_load(fes, integrand) -> np.ndarray:
+    """Vector of the linear form ``integrand()`` on ``fes``; zero if NGSolve folds it to 0 (zero data)."""
+    try:
+        lf = LinearForm(integrand())
+        with TaskManager():
+            lf.Assemble()
+    except Exception as exc:  # NGSolve folds 0 * v away: "Linearform must have TestFunction"
+        if "TestFunction" not in str(exc):
+            raise
+        return np.zeros(fes.ndof)
+    return np.array(lf.vec.FV().NumPy())
+
+
+def evaluate_at_points(mesh, cf, pts: np.ndarray) -> np.ndarray:
+    """Values of a scalar CoefficientFunction at points (n, 2) of ``mesh``; points outside the
+    mesh (e.g. near a curved boundary) get the value 0."""
+    try:
+        return np.asarray(cf(mesh(pts[:, 0], pts[:, 1])), dtype=float).reshape(-1)
+    except Exception:  # some point outside: one point at a time
+        vals = np.zeros(len(pts))
+        for i, (px, py) in enumerate(pts):
+            try:
+                vals[i] = cf(mesh(px, py))
+            except Exception:
+                vals[i] = 0.0
+        return vals
