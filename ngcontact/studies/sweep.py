@@ -95,6 +95,19 @@ def _col(rows, c):
 
 
 # ---------------------------------------------------------------- report
+def _save(fig, png: Path) -> Path:
+    """Lay out, tidy the log axes, write ``png`` and close the figure."""
+    import matplotlib.pyplot as plt
+
+    from ..plotting import tidy_log_axes
+
+    fig.tight_layout()
+    tidy_log_axes(fig)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png
+
+
 def write_report(runs_dir, out_md, fig_dir) -> Path:
     """Read the sweep's run directories, write the plots and the markdown report."""
     import matplotlib
@@ -102,7 +115,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..plotting import slope_label, tidy_log_axes
+    from ..plotting import slope_label
 
     runs_dir, out_md, fig_dir = Path(runs_dir), Path(out_md), Path(fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -161,11 +174,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
             ax.grid(True, which="both", alpha=0.3)
         axs[0].legend(fontsize=6.5, ncol=2)
         fig.suptitle(f"{scene}: uniform (squares) vs adaptive (dots); error solid, estimator dashed")
-        fig.tight_layout()
-        png = fig_dir / f"{scene}_convergence.png"
-        tidy_log_axes(fig)
-        fig.savefig(png, dpi=110)
-        plt.close(fig)
+        png = _save(fig, fig_dir / f"{scene}_convergence.png")
         md += [f"![{scene}: error and estimator vs ndof and time]({rel(png)})", ""]
 
         # rates and final values
@@ -213,11 +222,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=7)
             ax.set_title(f"{scene}: effectivity per level")
-            fig.tight_layout()
-            png = fig_dir / f"{scene}_ieff.png"
-            tidy_log_axes(fig)
-            fig.savefig(png, dpi=110)
-            plt.close(fig)
+            png = _save(fig, fig_dir / f"{scene}_ieff.png")
             if any(s == scene for s, _, _ in ieff_rows):
                 md += [f"![{scene}: effectivity]({rel(png)})", ""]
                 md += ["| adaptive | I_eff per level |", "|---|---|"]
