@@ -89,9 +89,10 @@ def _fail(exc: BaseException, debug: bool) -> int:
         what = str(exc) if code == 2 or isinstance(exc, RunStopped) else _internal(exc)
     kept = None
     writer = Session.writer
-    if writer is not None:
+    if writer is not None and writer.started:
+        what = f"{what} during level {writer.done[0]}"
         try:
-            kept = writer.abort(f"{what} during level {writer.done[0]}")
+            kept = writer.abort(what)
         except Exception:  # the directory cannot be written either: say what happened first
             kept = None
     if code == 141:  # quiet; later writes to stdout (at exit) go nowhere

@@ -14,7 +14,7 @@ import resource
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["env_threads", "threads_used", "next_level_ndof", "memory_available", "memory_budget", "BYTES_PER_DOF"]
+__all__ = ["env_threads", "threads_used", "configured_threads", "next_level_ndof", "memory_available", "memory_budget", "BYTES_PER_DOF"]
 
 #: bytes of memory budgeted per DOF: a solve, and a solve with the estimators (flux reconstruction, patch
 #: problems); above the peak memory per DOF of the bundled scenes, checked by tests/test_outputs.py
@@ -44,14 +44,22 @@ def threads_used(threads=None):
     if n is None:
         yield
         return
-    from ngsolve import GetNumThreads, SetNumThreads
+    from ngsolve import SetNumThreads
 
-    previous = GetNumThreads()
+    previous = configured_threads()
     SetNumThreads(n)
     try:
         yield
     finally:
         SetNumThreads(previous)
+
+
+def configured_threads() -> int:
+    """The number of threads NGSolve's TaskManager runs with (``GetNumThreads`` tells it only inside one)."""
+    from ngsolve import GetNumThreads, TaskManager
+
+    with TaskManager():
+        return GetNumThreads()
 
 
 def next_level_ndof(rows) -> int:
