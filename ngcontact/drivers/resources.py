@@ -76,27 +76,25 @@ def next_level_ndof(rows) -> int:
     return int(round(last * ratio))
 
 
-def _meminfo_available():
+def _proc_bytes(path: str, key: str):
+    """The ``key:  N kB`` entry of a /proc file in bytes, or None."""
     try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
+        for line in Path(path).read_text().splitlines():
+            if line.startswith(key + ":"):
                 return int(line.split()[1]) * 1024
-    except OSError:
+    except (OSError, ValueError, IndexError):
         pass
+    return None
+
+
+def _meminfo_available():
+    avail = _proc_bytes("/proc/meminfo", "MemAvailable")
+    if avail is not None:
+        return avail
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
         return None
-
-
-def _vm_size():
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmSize:"):
-                return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return 0
 
 
 def _cgroup_free():
@@ -119,7 +117,7 @@ def memory_available():
         found.append((avail, "available memory"))
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft != resource.RLIM_INFINITY:
-        found.append((soft - _vm_size(), "ulimit -v"))
+        found.append((soft - (_proc_bytes("/proc/self/status", "VmSize") or 0), "ulimit -v"))
     cg = _cgroup_free()
     if cg is not None:
         found.append((cg, "cgroup memory limit"))
