@@ -16,7 +16,8 @@ from matplotlib.figure import Figure
 
 from .results import read_history
 
-__all__ = ["write_run_plots", "plot_run", "plot_compare", "plot_solution", "plot_eta_map", "plot_mesh", "slope_label",
+__all__ = ["write_run_plots", "plot_run", "plot_compare", "plot_solution", "solution_figure", "plot_eta_map", "plot_mesh",
+           "slope_label",
            "tidy_log_axes", "new_figure", "plotted_column", "run_label", "level_colors"]
 
 
@@ -214,8 +215,13 @@ def _contact_vertices(coords, contact) -> np.ndarray:
 
 
 def plot_solution(disc, x, y, out_file, title: str = "") -> Path:
-    """Gap u1 - u2 (or u - psi) and lam_h at the mesh vertices, each with its colour bar; the boundary of the
-    discrete contact set drawn as a line over the gap, so the field stays visible."""
+    """solution.png: :func:`solution_figure`."""
+    return _save(solution_figure(disc, x, y, title), out_file, 110)
+
+
+def solution_figure(disc, x, y, title: str = "") -> Figure:
+    """Gap u1 - u2 (or u - psi) and lam_h at the mesh vertices, each with its title, axes and colour bar; the
+    boundary of the discrete contact set drawn as a line over both, so the fields stay visible."""
     from matplotlib.lines import Line2D
 
     mesh = disc.mesh
@@ -244,7 +250,7 @@ def plot_solution(disc, x, y, out_file, title: str = "") -> Path:
         axs[0].set_title(gap_name + " (contact at every vertex)")
     if title:
         fig.suptitle(f"{title}: {mesh.ne} triangles, ndof {disc.ndof}", fontsize=10)
-    return _save(fig, out_file, 110)
+    return fig
 
 
 def plot_eta_map(estimate, out_file, title: str = "") -> Path:
