@@ -55,11 +55,14 @@ def threads_used(threads=None):
 
 
 def configured_threads() -> int:
-    """The number of threads NGSolve's TaskManager runs with (``GetNumThreads`` tells it only inside one)."""
-    from ngsolve import GetNumThreads, TaskManager
+    """The number of threads NGSolve's TaskManager runs with (``GetNumThreads`` tells it only inside one;
+    NGSolve releases without it: the number of cores, their default)."""
+    import ngsolve
 
-    with TaskManager():
-        return GetNumThreads()
+    if not hasattr(ngsolve, "GetNumThreads"):
+        return os.cpu_count() or 1
+    with ngsolve.TaskManager():
+        return ngsolve.GetNumThreads()
 
 
 def next_level_ndof(rows) -> int:
