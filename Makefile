@@ -4,9 +4,9 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-slow venv clean help
+.PHONY: demo demo-figure test test-install test-slow venv clean help
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
@@ -20,13 +20,21 @@ help:
 ## venv: create .venv and install the package (every target does this first)
 venv: $(STAMP)
 
-## demo: test 1 of [CAMWA21], FEM P1 and P2 on T0..T3 -> results/demo/
+## demo: test 1 of [CAMWA21], FEM P1 and P2 on T0..T3 -> results/runs/demo/ (not tracked)
 demo: $(STAMP)
-	$(PY) -m ngcontact demo --out results/demo
+	$(PY) -m ngcontact demo --out results/runs/demo
 
-## test: fast test suite (about 2 minutes on 2 cores, venv bootstrap included)
+## demo-figure: rerun the demo and copy its overview to results/demo/convergence.png (the README's figure)
+demo-figure: demo
+	cp results/runs/demo/convergence.png results/demo/convergence.png
+
+## test: fast test suite, including the wheel-install test (a few minutes on 2 cores, venv bootstrap included)
 test: $(STAMP)
 	$(PY) -m pytest -q tests ngcontact
+
+## test-install: only the wheel-install test: build the wheel, install it into a fresh venv, run it elsewhere
+test-install: $(STAMP)
+	$(PY) -m pytest -q tests/test_install.py
 
 ## reference-histories: rerun the short reference runs of tests/reference_runs.py and rewrite
 ## tests/data/reference_histories.json (only when a change of the numbers is intended)
@@ -38,9 +46,9 @@ reference-histories: $(STAMP)
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "" tests ngcontact
 
-## clean: remove the CLI's default run directories (results/runs) and pytest's cache
+## clean: remove the CLI's default run directories (results/runs), pytest's cache and build/ of pip install .
 clean:
-	rm -rf results/runs .pytest_cache
+	rm -rf results/runs .pytest_cache build
 
 ## fem-study: [CAMWA21] tests 1 and 2, FEM P1..P4 on T0..T4 (nested start; cold start for
 ## the Newton counts of the paper) -> results/fem/TABLES.md.  `make -j2 fem-study` runs in parallel.

@@ -29,7 +29,7 @@ import ngsolve
 from netgen.geom2d import SplineGeometry
 
 __all__ = ["DIRICHLET", "Domain", "CrissCrossSquare", "StructuredSquare", "GeometryDomain",
-           "UnitDisk", "LShape", "MeshFileDomain", "mesh_size"]
+           "UnitDisk", "LShape", "MeshFileDomain", "MeshDomain", "as_domain", "check_triangular", "mesh_size"]
 
 _SIDES = ("bottom", "right", "top", "left")
 
@@ -56,6 +56,19 @@ def mesh_size(mesh) -> float:
     ngmesh = getattr(mesh, "ngmesh", mesh)
     P = ngmesh.Coordinates()[ngmesh.Elements2D().NumPy()["nodes"][:, :3] - 1]
     return float(np.sqrt(((P - np.roll(P, 1, axis=1)) ** 2).sum(axis=-1)).max())
+
+
+def check_triangular(ngmesh, what: str) -> None:
+    """ValueError unless ``ngmesh`` (netgen mesh) is a 2D mesh of triangles: the discretizations (Lagrange
+    nodes, RT fluxes, bisection) are written for triangles.  ``what`` names the mesh in the message."""
+    if ngmesh.dim != 2 or len(ngmesh.Elements3D()) > 0:
+        raise ValueError(f"{what} is a {ngmesh.dim}D mesh; ngcontact solves 2D problems on triangular meshes")
+    nodes = ngmesh.Elements2D().NumPy()["nodes"]
+    if len(nodes) == 0:
+        raise ValueError(f"{what} has no 2D elements")
+    if nodes.shape[1] > 3 and (nquad := int(np.count_nonzero(nodes[:, 3]))):
+        raise ValueError(f"{what} has {nquad} quadrilateral element(s) of {len(nodes)}; ngcontact needs a triangular "
+                         f"mesh (netgen: GenerateMesh without quad_dominated)")
 
 
 def _fail(obj, field: str, value: Any, what: str):
@@ -326,6 +339,7 @@ class _NetgenDomain(Domain):
 
     def _ngmeshes(self, start, stop):
         ngmesh = self._coarse()
+        check_triangular(ngmesh, f"the coarse mesh of {self.name}")
         for level in range(stop):
             if level >= start:
                 yield ngmesh if level == stop - 1 else ngmesh.Copy()
@@ -469,7 +483,44 @@ class MeshFileDomain(_NetgenDomain):
             mesh.Load(str(self.path))
         except Exception as err:
             raise ValueError(f"MeshFileDomain.path: cannot read {str(self.path)!r}: {err}") from err
-        if mesh.dim != 2 or len(mesh.Elements2D()) == 0 or len(mesh.Elements3D()) > 0:
-            raise ValueError(f"MeshFileDomain.path: {str(self.path)!r} holds no 2D triangular mesh")
+        check_triangular(mesh, f"MeshFileDomain.path {str(self.path)!r}")
         mesh.SetGeometry(ngm.NetgenGeometry() if self.geometry is None else self.geometry)
         return mesh
+
+
+@dataclass(frozen=True)
+class MeshDomain(_NetgenDomain):
+    """A given mesh as T_0: ``ngsolve.Mesh`` or ``netgen.meshing.Mesh``, 2D triangles only (else ValueError);
+    levels by netgen refinement of a copy.  Boundary segments must be named (``interface``: not Dirichlet);
+    ``curved``: call ``mesh.Curve(p)`` in the FE code; ``label``: the ``name``."""
+
+    coarse: Any
+    curved: bool = False
+    label: str = ""
+
+    def __post_init__(self):
+        ngmesh = getattr(self.coarse, "ngmesh", self.coarse)
+        if not isinstance(ngmesh, ngm.Mesh):
+            _fail(self, "coarse", self.coarse, "an ngsolve.Mesh or a netgen.meshing.Mesh")
+        check_triangular(ngmesh, "MeshDomain.coarse")
+        for name, typ in (("curved", bool), ("label", str)):
+            if not isinstance(getattr(self, name), typ):
+                _fail(self, name, getattr(self, name), f"a {typ.__name__}")
+        object.__setattr__(self, "coarse", ngmesh)
+
+    @property
+    def name(self) -> str:
+        return self.label or f"given mesh ({len(self.coarse.Elements2D())} triangles)"
+
+    def _coarse(self):
+        return self.coarse.Copy()
+
+
+def as_domain(obj) -> Domain:
+    """``obj`` as a :class:`Domain`: a domain itself, or a mesh wrapped in :class:`MeshDomain`; TypeError otherwise."""
+    if isinstance(obj, Domain):
+        return obj
+    if isinstance(getattr(obj, "ngmesh", obj), ngm.Mesh):
+        return MeshDomain(obj)
+    raise TypeError(f"a domain must be an ngcontact Domain (e.g. CrissCrossSquare()) or an ngsolve.Mesh, "
+                    f"got {type(obj).__name__}")

@@ -1,4 +1,4 @@
-"""Scenes: small importable Python files of problem data (``cases/*.py``).
+"""Scenes: small importable Python files of problem data (``cases/*.py``, installed as ``ngcontact.cases``).
 
 A scene file defines
 
@@ -41,12 +41,29 @@ class Scene:
 
 
 def cases_dir() -> Path:
-    """Directory of the bundled scenes (``$NGCONTACT_CASES`` overrides)."""
+    """Directory of the bundled scenes.
+
+    ``$NGCONTACT_CASES`` if set; else ``cases/`` of the source tree when the package runs from its
+    own checkout (``pyproject.toml`` and ``cases/`` next to ``ngcontact/``); else the installed
+    package data ``ngcontact.cases`` (the same files, shipped in the wheel).
+    """
     env = os.environ.get("NGCONTACT_CASES")
-    return Path(env) if env else Path(__file__).resolve().parent.parent / "cases"
+    if env:
+        return Path(env)
+    root = Path(__file__).resolve().parent.parent
+    if (root / "pyproject.toml").is_file() and (root / "cases").is_dir():
+        return root / "cases"
+    from importlib.resources import files
+
+    try:
+        return Path(str(files("ngcontact.cases")))
+    except ModuleNotFoundError:
+        raise SceneError("the bundled scenes are missing: neither a source checkout's cases/ nor the installed "
+                         "package ngcontact.cases was found (set NGCONTACT_CASES to a directory of scenes)") from None
 
 
 def list_scenes() -> list:
+    """Names of the bundled scenes (the ``*.py`` files of :func:`cases_dir`, without ``_*.py``)."""
     return sorted(p.stem for p in cases_dir().glob("*.py") if not p.stem.startswith("_"))
 
 

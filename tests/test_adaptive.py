@@ -164,7 +164,7 @@ def test_run_options_validate_adaptive_fields(kw, field):
 
 @pytest.mark.parametrize("args, words", [(["--adaptive", "--theta", "1.5"], "theta"),
                                          (["--theta", "0.3"], "--theta need --adaptive"),
-                                         (["--max-ndof", "100"], "--max-ndof need --adaptive"),
+                                         (["--max-ndof", "0"], "option --max-ndof"),  # uniform runs: a budget too
                                          (["--adaptive", "--max-ndof", "-3"], "option --max-ndof"),
                                          (["--adaptive", "--disc", "hho"], "option --adaptive"),
                                          (["--adaptive", "--marking", "bulk"], "--marking")])

@@ -178,7 +178,7 @@ def test_out_never_replaces_a_foreign_directory(tmp_path, capsys):
     (mine / "thesis.tex").write_text("precious")
     assert main(["run", "test1", "--levels", "1", "--out", str(mine), "-q", "--no-vtk", "--no-plots"]) == 2
     err = capsys.readouterr().err
-    assert "--out" in err and "not an ngcontact run directory" in err and len(err.strip().splitlines()) == 1
+    assert "--out" in err and "ngcontact did not write" in err and len(err.strip().splitlines()) == 1
     assert (mine / "thesis.tex").read_text() == "precious"
     run = tmp_path / "run"
     for _ in range(2):  # the second run replaces the first one's directory
@@ -186,7 +186,7 @@ def test_out_never_replaces_a_foreign_directory(tmp_path, capsys):
     assert (run / "summary.json").is_file() and not list(tmp_path.glob(".tmp-*"))
     (run / "notes.txt").write_text("mine")  # a run directory holding a user's file is not replaced either
     assert main(["run", "test1", "--levels", "1", "--out", str(run), "-q", "--no-vtk", "--no-plots"]) == 2
-    assert "also holds 'notes.txt'" in capsys.readouterr().err and (run / "notes.txt").read_text() == "mine"
+    assert "holds 'notes.txt'" in capsys.readouterr().err and (run / "notes.txt").read_text() == "mine"
 
 
 @pytest.mark.parametrize("make_out,msg", [
@@ -254,24 +254,32 @@ def test_scene_file_problems_are_one_line(name, text, msg, tmp_path, capsys):
     assert "is a directory, not a scene .py file" in capsys.readouterr().err
 
 
-def test_sigterm_leaves_no_partial_outputs(tmp_path):
-    """SIGTERM during a run: exit code 143, no output or staging directory left."""
+def test_sigterm_keeps_the_finished_levels(tmp_path):
+    """SIGTERM during a run: exit code 143; the levels finished before it are on disk, summary.json says
+    "complete": false and why; no temporary file is left."""
     import signal
     import subprocess
     import sys
-    import time
+
+    from ngcontact.results import read_history
 
     out = tmp_path / "term"
     proc = subprocess.Popen([sys.executable, "-m", "ngcontact", "run", "test1", "--order", "2", "--levels", "7",
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    line = proc.stdout.readline()  # the header: the run has started
-    assert line.startswith("ngcontact: scene test1")
-    time.sleep(1.0)
+    assert proc.stdout.readline().startswith("ngcontact: scene test1")  # the header: the run has started
+    for line in proc.stdout:
+        if line.startswith("level 2:"):  # levels 0..2 are finished
+            break
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 143, err
-    assert "terminated" in err
-    assert not out.exists() and not list(tmp_path.glob(".tmp-*"))
+    assert "terminated (SIGTERM)" in err and "complete" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False and summary["reason"].startswith("terminated (SIGTERM) during level")
+    levels = [r["level"] for r in read_history(out / "history.csv")]
+    assert levels[:3] == [0, 1, 2] and levels == list(range(len(levels))) and len(levels) < 7
+    assert {r["level"] for r in read_history(out / "newton.csv")} == set(levels)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")] and not list(tmp_path.glob(".tmp-*"))
 
 
 def test_out_cannot_be_the_working_directory(tmp_path, monkeypatch, capsys):

@@ -1,4 +1,4 @@
-"""Run directories: the output schema (key columns level, n, t), the plots hook, atomic writes."""
+"""Run directories: the output schema (key columns level, n, t), the plots hook, data kept when figures fail."""
 import csv
 import json
 from dataclasses import dataclass
@@ -64,32 +64,40 @@ def test_stationary_run_files_have_no_time_columns(tmp_path):
     assert "| level | ndof | err_energy | rate |" in markdown_table([out])
 
 
-def test_plots_hook_draws_into_the_staging_directory(tmp_path):
+def test_plots_hook_draws_into_the_run_directory_after_the_data(tmp_path):
     seen = []
 
     def plots(directory, result):
-        seen.append((directory, sorted(p.name for p in directory.iterdir())))
+        summary = json.loads((directory / "summary.json").read_text())
+        seen.append((directory, sorted(p.name for p in directory.iterdir()), summary["complete"]))
         (directory / "figure.png").write_bytes(b"png")
+        return ["figure.png"]
 
     out = write_run(_result([{"level": 0, "ndof": 3}], []), tmp_path / "run", vtk=False, plots=plots)
-    (staging, present), = seen
-    assert staging != out and staging.parent == out.parent
-    assert present == ["history.csv", "newton.csv", "summary.json"]  # data first, then the figures
+    (directory, present, complete), = seen
+    assert directory == out
+    assert present == ["history.csv", "manifest.json", "newton.csv", "summary.json"]  # data first, then the figures
+    assert complete is False  # until the figures are there
     assert (out / "figure.png").read_bytes() == b"png"
-    assert json.loads((out / "summary.json").read_text())["scene"] == "timed"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scene"] == "timed" and summary["complete"] is True and summary["reason"] is None
+    assert json.loads((out / "manifest.json").read_text())["files"] == ["history.csv", "newton.csv", "summary.json",
+                                                                        "figure.png"]
 
 
-def test_failing_plots_hook_leaves_nothing_and_keeps_the_previous_run(tmp_path):
+def test_failing_plots_hook_keeps_the_data_and_says_incomplete(tmp_path):
     out = write_run(_result([{"level": 0, "ndof": 3}], []), tmp_path / "run", vtk=False)
-    before = (out / "history.csv").read_text()
 
     def broken(directory, result):
         raise RuntimeError("no display")
 
     with pytest.raises(RuntimeError, match="no display"):
         write_run(_result([{"level": 0, "ndof": 99}], []), out, vtk=False, plots=broken)
-    assert (out / "history.csv").read_text() == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no staging directory left
+    assert read_history(out / "history.csv")[0]["ndof"] == 99  # the computed data are kept
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False and "RuntimeError: no display" in summary["reason"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary file left
     with pytest.raises(TypeError, match="plots must be None or a callable"):
         write_run(_result([{"level": 0, "ndof": 3}], []), tmp_path / "other", plots=True)
     assert not (tmp_path / "other").exists()

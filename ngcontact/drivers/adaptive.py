@@ -52,7 +52,8 @@ def interior_nodes(mesh, order: int) -> int:
     return int(sum(ngsolve.H1(mesh, order=order, dirichlet=DIRICHLET).FreeDofs()))
 
 
-def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = None, newton_callback=None):
+def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = None, newton_callback=None,
+                 on_level: Optional[Callable[[RunResult], None]] = None):
     """Adaptive loop on ``scene``; returns a :class:`~.level.RunResult`.
 
     Parameters
@@ -66,6 +67,8 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
     progress : callable(str), optional
         one line per level.
     newton_callback : callable(level, IterationRecord), optional
+    on_level : callable(RunResult), optional
+        called after every finished level (its row complete, its solution in the result).
 
     Returns
     -------
@@ -123,6 +126,8 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
                f" ({status(out.sol)})  eta {est.eta:.3e}")
         if "err_energy" in out.errors:
             msg += f"  err {out.errors['err_energy']:.3e}  I_eff {est.i_eff:.3f}"
+        if on_level is not None:  # on disk before the progress line says it is done
+            on_level(result)
         say(msg + f"  t_cum {t_cum:.2f} s")
         previous = (out.disc, out.sol.x, out.sol.y)
         if stop is not None:

@@ -36,7 +36,8 @@ class RunResult:
     estimate: object = None  # Estimate of the final level (when estimated)
     converged: bool = True
     failures: List[str] = field(default_factory=list)
-    stop_reason: Optional[str] = None  # adaptive runs: why the loop ended
+    stop_reason: Optional[str] = None  # adaptive runs: why the loop ended; uniform runs: why they stopped early
+    complete: bool = True  # False: the run stopped before its requested levels (stop_reason says why)
 
 
 class LevelEstimator:

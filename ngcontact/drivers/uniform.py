@@ -1,6 +1,8 @@
 """Uniform levels: solve a scene on levels 0..L-1 of its domain (nested or cold start).
 
 Builds no forms (the discretization does) and draws nothing (plotting reads the written files).
+Before a level is built its DOF count is estimated; with ``options.max_ndof`` the run stops before
+a level that would exceed it (``result.complete`` False, ``result.stop_reason`` says why).
 """
 from __future__ import annotations
 
@@ -10,19 +12,30 @@ from typing import Callable, Optional
 import numpy as np
 
 from .level import RunResult, iteration_callback, level_row, record_level, solve_level, status, update_rates
+from .resources import next_level_ndof
 
 __all__ = ["run_uniform"]
 
 
 def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None,
-                newton_callback=None) -> RunResult:
-    """Solve ``scene`` on levels 0..options.levels-1 of its domain; one history row per level."""
+                newton_callback=None, on_level: Optional[Callable[[RunResult], None]] = None) -> RunResult:
+    """Solve ``scene`` on levels 0..options.levels-1 of its domain; one history row per level.
+
+    ``on_level(result)`` is called after every finished level (its row appended, its solution in ``result``).
+    """
     say = progress or (lambda msg: None)
     problem = scene.problem
     result = RunResult(scene=scene, options=options)
     previous, t_cum = None, 0.0
     meshes = problem.domain.meshes(options.levels)
     for level in range(options.levels):
+        if level > 0 and options.max_ndof is not None:
+            ndof = next_level_ndof(result.rows)
+            if ndof > options.max_ndof:
+                result.complete = False
+                result.stop_reason = f"max_ndof: level {level} would have about {ndof:.3g} DOFs > {options.max_ndof}"
+                say(f"stopped before level {level}: {result.stop_reason}")
+                break
         t0 = time.perf_counter()
         mesh = next(meshes)
         t_mesh = time.perf_counter() - t0
@@ -42,6 +55,8 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
             msg += f"  err {row['err_energy']:.3e}" + (f"  rate {rate:.2f}" if np.isfinite(rate) else "")
         if out.estimate is not None:
             msg += f"  eta {out.estimate.eta:.3e}" + (f"  I_eff {row['i_eff']:.3f}" if "i_eff" in row else "")
+        if on_level is not None:  # on disk before the progress line says it is done
+            on_level(result)
         say(msg)
         previous = (out.disc, out.sol.x, out.sol.y)
     return result
