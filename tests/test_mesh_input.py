@@ -6,7 +6,7 @@ import pytest
 from netgen.csg import unit_cube
 from netgen.geom2d import unit_square
 
-from ngcontact import MeshDomain, MeshFileDomain, TwoMembraneProblem, as_domain
+from ngcontact import MeshDomain, MeshFileDomain, ProblemDataError, TwoMembraneProblem, as_domain
 from ngcontact.drivers import RunOptions, run_scene
 from ngcontact.scenes import Scene
 
@@ -22,6 +22,16 @@ def test_an_ngsolve_mesh_is_a_domain_with_refined_levels():
     problem = TwoMembraneProblem(domain=domain, f1=-8.0, f2=8.0, g1=0.0, g2=0.0)
     res = run_scene(Scene(name="mine", path=None, problem=problem), RunOptions(order=2, levels=2))
     assert res.converged and res.rows[-1]["active_nodes"] > 0
+
+
+def test_a_problem_takes_an_ngsolve_mesh_as_its_domain():
+    mesh = ngsolve.Mesh(unit_square.GenerateMesh(maxh=0.25))
+    problem = TwoMembraneProblem(domain=mesh, f1=-8.0, f2=8.0, g1=0.0, g2=0.0)
+    assert isinstance(problem.domain, MeshDomain)
+    res = run_scene(Scene(name="mine", path=None, problem=problem), RunOptions(order=1, levels=2))
+    assert res.converged and res.rows[0]["nelem"] == mesh.ne and res.rows[1]["nelem"] == 4 * mesh.ne
+    with pytest.raises(ProblemDataError, match="domain must be .* or an ngsolve.Mesh, got str"):
+        TwoMembraneProblem(domain="square.vol", f1=-8.0, f2=8.0, g1=0.0, g2=0.0)
 
 
 @pytest.mark.parametrize("make, words", [

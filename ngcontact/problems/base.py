@@ -24,6 +24,8 @@ from typing import Dict, Optional, Protocol, Sequence, Tuple
 import numpy as np
 from ngsolve import CoefficientFunction
 
+from ..domains import as_domain
+
 __all__ = ["ProblemDataError", "ExactSolution", "Problem", "ContactProblem", "BoundaryOrder",
            "check_data_on_points", "data_fields"]
 
@@ -191,11 +193,11 @@ class ContactProblem:
         for name in tensions:
             object.__setattr__(self, name, _positive(getattr(self, name), f"{cls}.{name}"))
         _convert_cfs(self, cfs)
-        dom = self.domain
-        if not (hasattr(dom, "mesh") and hasattr(dom, "meshes")):
-            raise ProblemDataError(
-                f"{cls}.domain must be an ngcontact domain (e.g. CrissCrossSquare()), got {type(dom).__name__}"
-            )
+        try:  # a domain, or a user's ngsolve / netgen mesh (refined uniformly for the levels)
+            object.__setattr__(self, "domain", as_domain(self.domain))
+        except TypeError:
+            raise ProblemDataError(f"{cls}.domain must be an ngcontact domain (e.g. CrissCrossSquare()) or an "
+                                   f"ngsolve.Mesh, got {type(self.domain).__name__}") from None
         if self.exact is not None and not isinstance(self.exact, ExactSolution):
             raise ProblemDataError(f"{cls}.exact must be an ExactSolution, got {type(self.exact).__name__}")
 

@@ -282,7 +282,7 @@ def main(argv=None) -> int:
     if argv[:1] == ["run"] and len(argv) == 3:  # run NAME OUTDIR
         from ..cli import main as cli_main
 
-        # one NGSolve thread per sweep run (the CLI reads NGCONTACT_THREADS; see cli._apply_thread_setting),
+        # one NGSolve thread per sweep run (run_scene reads NGCONTACT_THREADS; drivers/resources.py),
         # so that every run is timed alike whether the sweep runs sequentially or as `make -j2 sweep`
         os.environ.setdefault("NGCONTACT_THREADS", str(SWEEP_THREADS))
         return cli_main(["run", *sweep_argv(argv[1]), "-q", "--out", argv[2]])
