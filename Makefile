@@ -50,6 +50,8 @@ test-slow: $(STAMP)
 clean:
 	rm -rf results/runs .pytest_cache build
 
+# Study runs are written to NAME.part and renamed to NAME when they finish: a killed run leaves
+# NAME.part (replaced by the next attempt) and never a directory that make would take as done.
 ## fem-study: [CAMWA21] tests 1 and 2, FEM P1..P4 on T0..T4 (nested start; cold start for
 ## the Newton counts of the paper) -> results/fem/TABLES.md.  `make -j2 fem-study` runs in parallel.
 FEM_RUNS := $(foreach t,test1 test2,$(foreach p,1 2 3 4,results/fem/$(t)-p$(p)-nested)) \
@@ -62,7 +64,7 @@ fem-study: $(FEM_RUNS)
 
 results/fem/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
-	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@
+	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@.part && mv $@.part $@
 
 ## compare: FEM vs HHO (SC / no SC) vs SIPG / NIPG on [CAMWA21] tests 1, 2,
 ## p = 1..4, T0..T4 (nested start), plus cold-start Newton counts of FEM and HHO
@@ -79,7 +81,7 @@ cmp_levels = $(if $(filter nipg-p3 nipg-p4,$(word 2,$(subst -, ,$(1)))-$(word 3,
 results/compare/runs/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --disc $(word 2,$(subst -, ,$*)) \
 	  --order $(subst p,,$(word 3,$(subst -, ,$*))) --start $(word 4,$(subst -, ,$*)) \
-	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels $(call cmp_levels,$*) --no-vtk --no-plots -q --out $@
+	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels $(call cmp_levels,$*) --no-vtk --no-plots -q --out $@.part && mv $@.part $@
 
 ## inexact-study: direct / gmres / inexact / adaptive inexact semismooth Newton (GMRES + ILU) on the
 ## [JSC20] disk test, P1 and P2, 2k..35k elements, (gamma_alg, gamma_lin) table -> results/inexact/TABLES.md
@@ -96,7 +98,7 @@ SWEEP_RUNS := $(foreach s,lshape test1 disk disk_fitted point_load,$(foreach m,u
 sweep: $(SWEEP_RUNS)
 
 results/sweep/runs/%: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.sweep run $* $@
+	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.sweep run $* $@.part && mv $@.part $@
 
 report: $(STAMP)
 	$(PY) -m ngcontact.studies.sweep report results/sweep/runs results/REPORT.md results/report
@@ -120,4 +122,4 @@ estimator-study: $(EST_RUNS)
 
 results/estimators/runs/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst ., ,$*)) --order $(subst p,,$(word 2,$(subst ., ,$*))) \
-	  --levels $(subst L,,$(word 3,$(subst ., ,$*))) --start cold --estimate --no-vtk --no-plots -q --out $@
+	  --levels $(subst L,,$(word 3,$(subst ., ,$*))) --start cold --estimate --no-vtk --no-plots -q --out $@.part && mv $@.part $@
