@@ -77,7 +77,8 @@ def test_every_record_describes_its_iterate(cfun):
         it = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun, maxit=k))
         rec = full.history[k]
         phi = np.concatenate([s.residual(it.x, it.y), cf.value(s.gap(it.x), it.y)])
-        assert rec.res == pytest.approx(np.linalg.norm(phi) / np.linalg.norm(s.F), rel=1e-9, abs=1e-15)
+        # the two runs agree to round-off (threaded factorizations): ||Phi||/||F|| to 1e-12 absolute
+        assert rec.res == pytest.approx(np.linalg.norm(phi) / np.linalg.norm(s.F), rel=1e-9, abs=1e-12)
         active = s.gap(it.x) <= it.y
         assert rec.n_active == int(active.sum())
         assert rec.n_changed == int((active != active_prev).sum())
