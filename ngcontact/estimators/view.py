@@ -63,11 +63,6 @@ def _cache_of(disc) -> dict:
         return {}
 
 
-def _field_layout(problem, nfields: int):
-    """(names, loads, Dirichlet data) of the problem's fields."""
-    return tuple(problem.field_names), tuple(problem.loads), tuple(problem.dirichlet)
-
-
 @dataclass(frozen=True, eq=False)
 class DiscretizationView:
     """The data of one discretization that the estimators use (independent of the iterate).
@@ -124,7 +119,7 @@ class DiscretizationView:
     def of(cls, disc) -> "DiscretizationView":
         """The view of a conforming Lagrange discretization (``FEMDiscretization``)."""
         problem, nf = disc.problem, disc.nfields
-        names, loads, dirichlet = _field_layout(problem, nf)
+        names, loads, dirichlet = tuple(problem.field_names), tuple(problem.loads), tuple(problem.dirichlet)
         return cls(mesh=disc.mesh, order=disc.order, quad_bonus=disc.quad_bonus, problem=problem,
                    curved=bool(getattr(problem.domain, "curved", False)) and disc.order > 1,
                    names=names, mus=tuple(problem.mus), loads=loads, dirichlet=dirichlet,
