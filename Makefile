@@ -103,6 +103,12 @@ results/sweep/runs/%: $(STAMP)
 report: $(STAMP)
 	$(PY) -m ngcontact.studies.sweep report results/sweep/runs results/REPORT.md results/report
 
+## stability: the stability suite (stiff and extreme cases, one rule: converged with a valid certificate,
+##            or a named reason; ngcontact/studies/stability.py) -> results/STABILITY.md (~10 min)
+.PHONY: stability
+stability: $(STAMP)
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.stability results/STABILITY.md
+
 ## bench: benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
 ##        -> results/bench/*.csv + results/bench/BENCH.md; estimator vs Newton time -> results/bench/ESTIMATE.md.
 ##        Not part of `make test`.

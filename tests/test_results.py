@@ -55,12 +55,13 @@ def test_stationary_run_files_have_no_time_columns(tmp_path):
     assert main(["run", "test1", "--levels", "2", "--out", str(out), "-q", "--no-vtk", "--no-plots"]) == 0
     assert _header(out / "history.csv") == [
         "level", "nelem", "h", "ndof", "nodes", "err_energy", "rate_energy", "err_max_nodal", "newton_its",
-        "newton_converged", "res_final", "active_nodes", "linear_size", "gap_min", "lam_min", "product_max",
+        "newton_converged", "res_final", "certified", "cert_penetration", "cert_negativity", "cert_slackness",
+        "cert_tol", "newton_remedies", "active_nodes", "linear_size", "gap_min", "lam_min", "product_max",
         "time_mesh_s", "time_assembly_s", "time_prolong_s", "time_solve_s", "time_linear_s", "time_post_s",
         "time_total_s", "time_cum_s"]
     assert _header(out / "newton.csv") == [
         "level", "k", "res", "res_lin", "res_c", "n_active", "n_changed", "step", "time_linear", "time_step",
-        "linear_size", "linear_path", "pcg_its", "eps_lin", "eps_disc"]
+        "linear_size", "linear_path", "pcg_its", "eps_lin", "eps_disc", "remedy"]
     assert "| level | ndof | err_energy | rate |" in markdown_table([out])
 
 

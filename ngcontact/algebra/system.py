@@ -29,6 +29,8 @@ Factorization reuse across steps lives in :mod:`.reuse`.
 """
 from __future__ import annotations
 
+import copy
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Optional
@@ -38,7 +40,19 @@ import scipy.sparse as sp
 
 from .linalg import SPDSolver
 
-__all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS"]
+__all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS",
+           "power_of_two"]
+
+
+def power_of_two(v: float) -> float:
+    """2^round(log2 v) for a positive finite v, else 1 (scaling by it is exact in floating point).
+
+    >>> power_of_two(3.0), power_of_two(1e-160) == 2.0 ** -532, power_of_two(0.0)
+    (4.0, True, 1.0)
+    """
+    if not (v > 0 and math.isfinite(v)):
+        return 1.0
+    return math.ldexp(1.0, round(math.log2(v)))
 
 #: how a Newton step's reduced system was solved (IterationRecord.linear_path is the index)
 LINEAR_PATHS = ("factor", "pcg", "pcg-failed")
@@ -71,14 +85,15 @@ class RowClasses:
     c0: np.ndarray
 
 
-def classify_rows(g, y, C, Ca, Cb, eps: float = 1e-12) -> RowClasses:
+def classify_rows(g, y, C, Ca, Cb, eps: float = 1e-12, weight: float = 1.0) -> RowClasses:
     """Row classes of the Newton step at the gap ``g`` and multiplier ``y`` (see :class:`RowClasses`).
 
-    ``C``, ``Ca``, ``Cb``: the C-function's value and diagonal generalized Jacobian at (g, y);
-    a derivative counts as zero when it is at most ``eps`` times the other one.
+    ``C``, ``Ca``, ``Cb``: the value and diagonal generalized Jacobian of C(w g, y), w = ``weight``
+    (the system's constraint weight, so Ca = w dC/da); a derivative counts as zero when it is at most
+    ``eps`` times the other one, compared as dC/da and dC/db (dimensionless).
     """
     m = len(g)
-    aCa, aCb = np.abs(Ca), np.abs(Cb)
+    aCa, aCb = np.abs(Ca) / weight, np.abs(Cb)
     eq = aCb <= eps * aCa
     fixed = ~eq & (aCa <= eps * aCb)
     mixed = ~eq & ~fixed
@@ -111,6 +126,7 @@ class ComplementaritySystem:
     b: np.ndarray
     D: np.ndarray
     solver: str = "sparsecholesky"
+    stiffness_scale: float = 1.0  # tension scale of the problem (Problem.stiffness_scale): see constraint_weight
     _B: sp.csr_matrix = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -141,6 +157,23 @@ class ComplementaritySystem:
     @property
     def m(self) -> int:
         return len(self.up)
+
+    @property
+    def constraint_weight(self) -> float:
+        """w in the complementarity pair (w g, y) handed to the C-function: ``stiffness_scale``.  g is in
+        units of u and y in units of the tension times u (per unit area), so C(w g, y) treats both alike
+        when the tensions are scaled: the Newton iterates of a problem with all tensions and loads times s
+        are those of the unscaled one (up to rounding; bit for bit when s is a power of 2)."""
+        return float(self.stiffness_scale)
+
+    def rescaled(self, s: float) -> "ComplementaritySystem":
+        """The same system for the data divided by ``s`` (F / s, b / s; a power of 2 keeps it exact):
+        its solution is (x / s, y / s).  Shares K and every other array."""
+        if s == 1.0:
+            return self
+        out = copy.copy(self)
+        out.F, out.b = self.F / s, self.b / s
+        return out
 
     def gap(self, x: np.ndarray) -> np.ndarray:
         """g(x) = B x - b."""
@@ -256,7 +289,7 @@ class ComplementaritySystem:
         inexact Newton driver (:mod:`ngcontact.newton.inexact`, Krylov solve).
         """
         n = self.n
-        rc = classify_rows(self.gap(x), y, C, Ca, Cb, eps)
+        rc = classify_rows(self.gap(x), y, C, Ca, Cb, eps, self.constraint_weight)
         eq, fixed, mixed, g_target, y_fixed, w, c0 = rc.eq, rc.fixed, rc.mixed, rc.g_target, rc.y_fixed, rc.w, rc.c0
 
         # right-hand side and matrix of the x-equation (before elimination)

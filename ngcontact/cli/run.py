@@ -163,6 +163,8 @@ def cmd_run(args, argv) -> int:
     Session.writer = None
     for note in writer.dir.notes:
         print(f"ngcontact: note: {note}", file=sys.stderr)
+    for note in result.notes:
+        print(f"ngcontact: note: Newton safeguard, {note}", file=sys.stderr)
     print(format_table(result.rows, f"\n{scene.name}: {options.disc} P{options.order} ({time.perf_counter() - t0:.1f} s)"))
     if result.stop_reason and args.quiet and result.complete:  # otherwise the loop's progress line said it
         print(f"adaptive loop stopped: {result.stop_reason}")

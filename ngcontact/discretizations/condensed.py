@@ -92,7 +92,7 @@ class CondensedHHOSystem(ComplementaritySystem):
         mu1, mu2 = self.mu
         if np.any(self.D != 1.0) or np.any(self.b != 0.0):
             raise ValueError("CondensedHHOSystem expects D = I and b = 0")
-        rc = classify_rows(self.gap(x), y, C, Ca, Cb, eps)  # g_target: prescribed d = x1 - x2 on equality rows
+        rc = classify_rows(self.gap(x), y, C, Ca, Cb, eps, self.constraint_weight)  # g_target: prescribed d = x1 - x2 on equality rows
         EQ, MX = rc.eq.reshape(ne, nc), rc.mixed.reshape(ne, nc)
         YF, W, C0, T = (v.reshape(ne, nc) for v in (rc.y_fixed, rc.w, rc.c0, rc.g_target))
         F1C = self.F[:ncell].reshape(ne, nc)

@@ -166,7 +166,8 @@ class DGDiscretization(BrokenDiscretization):
         self.constrained = np.flatnonzero(cons)  # (cell * nc + node) of each constraint row
         m = len(self.constrained)
         up, lo = self.constrained, n1 + self.constrained
-        self.system = DGComplementaritySystem(K, F, up, lo, np.zeros(m), np.ones(m), solver=solver)
+        self.system = DGComplementaritySystem(K, F, up, lo, np.zeros(m), np.ones(m), solver=solver,
+                                             stiffness_scale=problem.stiffness_scale)
         if solver == "sparsecholesky":
             self.system.factorization = "sparsecholesky" if variant == "sipg" else "umfpack"
         else:

@@ -109,7 +109,8 @@ class FEMDiscretization(Discretization):
             up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
         else:  # u - psi >= 0
             up, lo, b = np.arange(ni), -np.ones(ni, dtype=np.int64), data["psi"][self.interior]  # psi of problem.data()
-        self.system = ComplementaritySystem(K, np.concatenate(F), up, lo, b, self.D, solver=solver)
+        self.system = ComplementaritySystem(K, np.concatenate(F), up, lo, b, self.D, solver=solver,
+                                             stiffness_scale=problem.stiffness_scale)
         self.time_assembly = time.perf_counter() - t0
 
     def _load(self, f, v) -> np.ndarray:

@@ -216,10 +216,10 @@ class HHODiscretization(BrokenDiscretization):
         m = ncell
         args = (K, np.concatenate(F), up, lo, np.zeros(m), np.ones(m))
         if self.condense:
-            self.system = CondensedHHOSystem(*args, solver=solver)
+            self.system = CondensedHHOSystem(*args, solver=solver, stiffness_scale=problem.stiffness_scale)
             self.system.setup(A, ldofs, nc, p, mu1, mu2)
         else:
-            self.system = ComplementaritySystem(*args, solver=solver)
+            self.system = ComplementaritySystem(*args, solver=solver, stiffness_scale=problem.stiffness_scale)
         self.time_assembly = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ sizes

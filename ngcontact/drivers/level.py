@@ -36,6 +36,7 @@ class RunResult:
     estimate: object = None  # Estimate of the final level (when estimated)
     converged: bool = True
     failures: List[str] = field(default_factory=list)
+    notes: List[str] = field(default_factory=list)  # safeguards the Newton loop took (newton.safeguards)
     stop_reason: Optional[str] = None  # adaptive runs: why the loop ended; uniform runs: why they stopped early
     complete: bool = True  # False: the run stopped before its requested levels (stop_reason says why)
 
@@ -149,6 +150,7 @@ def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = 
            **({"ndof_sc": disc.ndof_sc} if disc.ndof_sc is not None else {}),
            "nodes": disc.n_interior, **(head or {}), **out.errors,
            "newton_its": sol.iterations, "newton_converged": int(sol.converged), "res_final": sol.history[-1].res,
+           **certificate_columns(sol),
            **(balance_columns(sol) if options.newton_stop == "balanced" else {}),
            "active_nodes": sol.history[-1].n_active,
            "linear_size": max((r.linear_size for r in sol.history), default=0),
@@ -161,6 +163,15 @@ def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = 
            "time_post_s": out.time_post, **est_cols,
            **({"time_estimate_s": out.time_estimate} if out.estimate is not None else {})}
     return row
+
+
+def certificate_columns(sol) -> dict:
+    """The exit certificate of a level's Newton result (results.py documents the columns)."""
+    c = sol.certificate
+    if c is None:
+        return {}
+    return {"certified": int(c.valid), "cert_penetration": c.penetration, "cert_negativity": c.negativity,
+            "cert_slackness": c.slackness, "cert_tol": c.tol, "newton_remedies": len(sol.remedies)}
 
 
 def update_rates(rows: List[dict], h_key) -> None:
@@ -180,6 +191,7 @@ def record_level(result: RunResult, level: int, out: LevelOutcome) -> None:
     if not out.sol.converged:
         result.converged = False
         result.failures.append(f"level {level}: Newton did not converge: {out.sol.reason}")
+    result.notes.extend(f"level {level}: {line}" for line in out.sol.remedies)
 
 
 def iteration_callback(result: RunResult, level: int, newton_callback=None):
@@ -192,5 +204,11 @@ def iteration_callback(result: RunResult, level: int, newton_callback=None):
 
 
 def status(sol) -> str:
-    """The Newton outcome in a progress line."""
-    return sol.reason if sol.converged else "NOT converged: " + sol.reason
+    """The Newton outcome in a progress line (with the safeguards taken and an unmet certificate)."""
+    text = sol.reason if sol.converged else "NOT converged: " + sol.reason
+    if sol.remedies:
+        text += " [safeguards: " + "; ".join(sol.remedies) + "]"
+    cert = sol.certificate
+    if cert is not None and sol.converged and not cert.valid:
+        text += f" [{cert.failure()}]"
+    return text

@@ -34,6 +34,13 @@ class NewtonOptions:
     armijo: float = 1e-4
     min_step: float = 2.0 ** -30
     reuse_factorization: bool = True  # direct solves: PCG with an earlier step's factorization (algebra.reuse)
+    cert_tol: Optional[float] = None  # exit certificate (newton.certificate); None: certificate_tol's default
+
+    @property
+    def certificate_tol(self) -> float:
+        """Bound on the relative penetration, negative multiplier and slackness at exit (:mod:`.certificate`):
+        ``cert_tol``, default 1e3 tol."""
+        return self.cert_tol if self.cert_tol is not None else 1e3 * self.tol
 
     def __post_init__(self):
         try:
@@ -52,6 +59,8 @@ class NewtonOptions:
             raise option_error("min_step", self.min_step, "a number in (0, 1)")
         if not isinstance(self.reuse_factorization, bool):
             raise option_error("reuse_factorization", self.reuse_factorization, "True or False")
+        if self.cert_tol is not None and not (_is_number(self.cert_tol) and 0 < self.cert_tol < 1):
+            raise option_error("cert_tol", self.cert_tol, "a number in (0, 1)")
 
 
 @dataclass
@@ -72,6 +81,7 @@ class IterationRecord:
     pcg_its: int = 0  # PCG iterations of this step (also those of a failed attempt)
     eps_lin: float = float("nan")  # balanced stop only: linearization defect (newton.stopping)
     eps_disc: float = float("nan")  # balanced stop only: discretization proxy 2^-p |||x - x_ref|||
+    remedy: int = 0  # safeguard taken after this iteration (index in newton.safeguards.REMEDIES)
 
 
 @dataclass
@@ -89,6 +99,8 @@ class NewtonResult:
     iterations: int
     history: List[IterationRecord] = field(default_factory=list)
     estimates: list = field(default_factory=list)
+    certificate: Optional[object] = None  # newton.certificate.Certificate of (x, y)
+    remedies: List[str] = field(default_factory=list)  # safeguards taken (newton.safeguards), one line each
 
     @property
     def time_linear(self) -> float:

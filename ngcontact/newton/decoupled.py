@@ -13,12 +13,11 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from ..algebra.cfunctions import get_cfunction
 from ..algebra.linalg import FixedPatternCholesky, SPDSolver
 from ..algebra.system import ComplementaritySystem
 from .base import IterationRecord, NewtonOptions, NewtonResult
 from .linear import DirectSolve
-from .loop import semismooth_newton
+from .loop import exit_certificate, relative_residual, safe_norm, semismooth_newton
 
 __all__ = ["decoupled_newton"]
 
@@ -49,8 +48,9 @@ def decoupled_newton(
     F1, F2 = system.F[:m], system.F[m:]
     Fw = F1 - F2 / alpha
     wsys = ComplementaritySystem(S, Fw, np.arange(m), -np.ones(m, dtype=np.int64), np.zeros(m),
-                                 system.D * (1.0 + 1.0 / alpha), solver=system.solver)
-    scale, scale_w = np.linalg.norm(system.F), max(np.linalg.norm(Fw), np.finfo(float).tiny)
+                                 system.D * (1.0 + 1.0 / alpha), solver=system.solver,
+                                 stiffness_scale=system.stiffness_scale)
+    scale, scale_w = safe_norm(system.F), max(safe_norm(Fw), np.finfo(float).tiny)
     t0 = time.perf_counter()
     fixed = None
     if system.solver == "sparsecholesky" and options.reuse_factorization:
@@ -70,11 +70,11 @@ def decoupled_newton(
     if res.history:
         res.history[0].time_linear += t_s
         res.history[0].time_step += t_s
-    cf = get_cfunction(options.cfun)
-    full = np.sqrt(np.linalg.norm(system.residual(x, res.y)) ** 2
-                   + np.linalg.norm(cf.value(system.gap(x), res.y)) ** 2) / max(scale, np.finfo(float).tiny)
-    if res.converged and (full <= options.tol or res.reason == "balanced"):
-        return NewtonResult(x, res.y, True, res.reason, res.iterations, res.history)
+    full = relative_residual(system, options.cfun, x, res.y)
+    cert_tol = options.certificate_tol if stop is None or res.reason == "converged" else stop.certificate_tol(options)
+    cert = exit_certificate(system, x, res.y, cert_tol)
+    if res.converged and (full <= options.tol or res.reason == "balanced") and cert.valid:
+        return NewtonResult(x, res.y, True, res.reason, res.iterations, res.history, certificate=cert)
     more = semismooth_newton(system, x, res.y, options, callback, stop=stop)  # fallback: coupled Newton
     more.history = res.history + more.history[1:]
     more.iterations = res.iterations + more.iterations

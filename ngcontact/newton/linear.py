@@ -83,6 +83,15 @@ class _DirectSession:
     def __init__(self, system, reuse):
         self.system, self.reuse = system, reuse
 
+    @property
+    def can_refresh(self) -> bool:
+        """Whether :meth:`fresh` changes anything (steps are solved with reused factorizations)."""
+        return self.reuse is not None
+
+    def fresh(self) -> None:
+        """Factorize every later step afresh (a safeguard of the loop, :mod:`.safeguards`)."""
+        self.reuse = None
+
     def step(self, k, x, y, c, Ca, Cb, res_prev) -> Trial:
         if self.reuse is None:
             xn, yn, info = self.system.newton_step(x, y, c, Ca, Cb)

@@ -25,16 +25,21 @@ a named ``reason`` (iteration cap, failed line search, non-finite residual).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Callable, Optional
 
 import numpy as np
 
 from ..algebra.cfunctions import get_cfunction
+from ..algebra.system import power_of_two
 from .base import IterationRecord, NewtonOptions, NewtonResult
+from .certificate import certificate
 from .linear import DirectSolve
+from .safeguards import Safeguards
 from .stopping import ResidualStop
 
-__all__ = ["semismooth_newton", "armijo_backtracking", "round_off_hint"]
+__all__ = ["semismooth_newton", "armijo_backtracking", "round_off_hint", "data_scale", "safe_norm",
+           "relative_residual", "exit_certificate"]
 
 
 def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOptions = NewtonOptions(),
@@ -69,50 +74,68 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     stop = stop if stop is not None else ResidualStop()
     cf = get_cfunction(options.cfun)
     line_search = options.line_search if options.line_search is not None else cf.name == "fb"
+    # nondimensionalize: solve for (x, y) / s with F / s, b / s (s a power of 2: the iterates are those of the
+    # unscaled data, bit for bit, and no square under- or overflows for data from 1e-300 to 1e+300)
+    s = data_scale(system)
+    original, system = system, system.rescaled(s)
+    linear, stop = _rescaled_strategy(linear, s), stop.rescaled(s)
+    w = system.constraint_weight
     scale = max(np.linalg.norm(system.F), np.finfo(float).tiny)
-    x, y = np.array(x0, dtype=float), np.array(y0, dtype=float)
+    x, y = np.array(x0, dtype=float) / s, np.array(y0, dtype=float) / s
     Record = linear.record_type
+    emit = (lambda k, x, y: on_iterate(k, x * s, y * s)) if on_iterate else None
 
     def merit(x, y):
         r = system.residual(x, y)
-        c = cf.value(system.gap(x), y)
+        c = cf.value(w * system.gap(x), y)
         return r, c, 0.5 * (r @ r + c @ c)
 
     t_start = time.perf_counter()
     r, c, psi = merit(x, y)
-    active = system.gap(x) <= y
+    active = w * system.gap(x) <= y
     history = [Record(0, float(np.sqrt(2 * psi) / scale), float(np.linalg.norm(r) / scale),
                       float(np.linalg.norm(c) / scale), int(active.sum()), 0, 0.0, 0.0,
                       time.perf_counter() - t_start)]
     estimates: list = []
     if callback:
         callback(history[-1])
-    if on_iterate:
-        on_iterate(0, x, y)
+    if emit:
+        emit(0, x, y)
+    guard = Safeguards()
+
+    def cert_tol(reason):
+        return options.certificate_tol if reason == "converged" else stop.certificate_tol(options)
 
     def result(converged, reason, k):
-        return NewtonResult(x, y, converged, reason, k, history, estimates)
+        cert = certificate(system, x, y, cert_tol(reason))
+        return NewtonResult(x * s, y * s, converged, reason, k, history, estimates, cert, guard.log)
 
-    if history[-1].res <= options.tol:
+    def certified(reason):
+        """The stop ``reason`` if the certificate that the rule requires holds at (x, y), else None (iterate on)."""
+        return reason if certificate(system, x, y, cert_tol(reason)).valid else None
+
+    if history[-1].res <= options.tol and certified("converged"):
         return result(True, "converged", 0)
-    session = linear.start(system, estimates)
+    session = guard.session = linear.start(system, estimates)
+    guard.cycling(0, active)
     reason = f"maximum number of iterations ({options.maxit}) reached"
     for k in range(1, options.maxit + 1):
         t0 = time.perf_counter()
-        g = system.gap(x)
-        Ca, Cb = cf.jacobian(g, y)
+        da, db = cf.jacobian(w * system.gap(x), y)
+        Ca, Cb = w * da, db  # derivatives of C(w g, y) with respect to g and y
         trial = session.step(k, x, y, c, Ca, Cb, history[-1].res)
         step, failed = 1.0, False
         if line_search:
             step, (xt, yt, rt, ct, psit) = armijo_backtracking(merit, x, y, trial.x, trial.y, psi,
                                                                options.armijo, options.min_step)
             failed = step < options.min_step
-            x, y, r, c, psi = xt, yt, rt, ct, psit
+            if not failed:
+                x, y, r, c, psi = xt, yt, rt, ct, psit
         else:
             x, y = trial.x, trial.y
             r, c, psi = merit(x, y)
         extra = session.after_step(k, x, y, step)
-        new_active = system.gap(x) <= y
+        new_active = w * system.gap(x) <= y
         rec = Record(k=k, res=float(np.sqrt(2 * psi) / scale), res_lin=float(np.linalg.norm(r) / scale),
                      res_c=float(np.linalg.norm(c) / scale), n_active=int(new_active.sum()),
                      n_changed=int((new_active != active).sum()), step=step, time_linear=trial.time_linear,
@@ -122,21 +145,101 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         rec.time_step = time.perf_counter() - t0
         active = new_active
         history.append(rec)
-        if callback:
-            callback(rec)
-        if on_iterate:
-            on_iterate(k, x, y)
-        if failed:
-            reason = f"line search failed at iteration {k} (step < {options.min_step:.1e})"
-            reason += round_off_hint(rec.res, options.tol)
-            break
         if not np.isfinite(rec.res):
+            if callback:
+                callback(rec)
             reason = f"non-finite residual at iteration {k}"
             break
+        cycled = None if line_search or failed else guard.cycling(k, active)
+        trouble = "stall" if failed else ("cycling" if cycled is not None else None)
+        if trouble:
+            code = guard.next_remedy(trouble)
+            if code is None:
+                if callback:
+                    callback(rec)
+                if failed:
+                    reason = f"line search failed at iteration {k} (step < {options.min_step:.1e})"
+                    reason += round_off_hint(rec.res, options.tol)
+                else:
+                    reason = f"Newton-min cycles: the active set of iteration {k} is that of iteration {cycled}"
+                if guard.log:
+                    reason += " (after the remedies: " + "; ".join(guard.log) + ")"
+                break
+            rec.remedy = code
+            guard.note(k, code, "line search failed" if failed else f"active set of iteration {cycled} again")
+            if code in (2, 3):
+                cf = get_cfunction("min" if code == 2 else "fb")
+                line_search = code == 3
+                r, c, psi = merit(x, y)
+                rec.res = float(np.sqrt(2 * psi) / scale)
+        if callback:
+            callback(rec)
+        if emit:
+            emit(k, x, y)
+        if failed:
+            continue
         done = stop.check(rec, options.tol)
-        if done is not None:
+        if done is not None and certified(done):
             return result(True, done, k)
+    else:
+        failure = certificate(system, x, y, options.certificate_tol).failure()
+        if failure and history[-1].res <= options.tol:
+            reason += f"; the residual test holds but the {failure}"
     return result(False, reason, len(history) - 1)
+
+
+def data_scale(system) -> float:
+    """The power of 2 nearest to the size of the data: ||F||_inf, else ||b||_inf times the constraint
+    weight (a load-free obstacle problem), else 1."""
+    for v in (system.F, system.constraint_weight * system.b):
+        if len(v):
+            m = float(np.max(np.abs(v)))
+            if m > 0 and np.isfinite(m):
+                return power_of_two(m)
+    return 1.0
+
+
+def safe_norm(v: np.ndarray) -> float:
+    """||v||_2 without under- or overflow of the squares (scaled by a power of 2 near ||v||_inf)."""
+    if not len(v):
+        return 0.0
+    s = power_of_two(float(np.max(np.abs(v))))
+    return s * float(np.linalg.norm(v / s))
+
+
+def relative_residual(system, cfun, x: np.ndarray, y: np.ndarray) -> float:
+    """||Phi(X)|| / ||F|| of the loop's stopping test at (x, y), Phi = [K x - B^T D y - F; C(w g, y)]."""
+    s = data_scale(system)
+    sysS, xs, ys = system.rescaled(s), x / s, y / s
+    r = sysS.residual(xs, ys)
+    c = get_cfunction(cfun).value(sysS.constraint_weight * sysS.gap(xs), ys)
+    return float(np.sqrt(r @ r + c @ c) / max(np.linalg.norm(sysS.F), np.finfo(float).tiny))
+
+
+def exit_certificate(system, x: np.ndarray, y: np.ndarray, tol: float):
+    """:func:`~.certificate.certificate` of (x, y), evaluated on the nondimensionalized system."""
+    s = data_scale(system)
+    return certificate(system.rescaled(s), x / s, y / s, tol)
+
+
+def _rescaled_strategy(linear, s: float):
+    """The linear strategy for the system with data / s: its estimator (Krylov modes) sees unscaled iterates."""
+    est = getattr(linear, "estimator", None)
+    if s == 1.0 or est is None:
+        return linear
+    return replace(linear, estimator=_UnscaledEstimator(est, s))
+
+
+class _UnscaledEstimator:
+    """Evaluates ``estimator`` at (x, y) * s: the estimators work in the units of the problem's data."""
+
+    def __init__(self, estimator, s: float):
+        self.estimator, self.s = estimator, s
+
+    def components(self, x, y, r_alg, dx):
+        s = self.s
+        return self.estimator.components(x * s, y * s, None if r_alg is None else r_alg * s,
+                                         None if dx is None else dx * s)
 
 
 def round_off_hint(res: float, tol: float) -> str:

@@ -13,7 +13,8 @@ residual test ||Phi(X^k)|| / ||F|| <= tol (reason ``"converged"``).
   a cheap, solve-free counterpart of the [JSC20] criterion eta_lin <= gamma_lin eta_disc:
 
   * eps_lin = ( ||R||^2_{diag(K)^-1} + sum_{g_i <= y_i} kappa_i c_i^2 + sum_{y_i < g_i} (D_i c_i)^2 / kappa_i )^{1/2},
-    c_i = min(g_i, y_i): the energy (diagonally scaled) of the defect left by step k --
+    c_i = g_i where w g_i <= y_i, else y_i (w: the system's constraint weight; the defect of
+    C = min(w g, y)): the energy (diagonally scaled) of the defect left by step k --
     linear residual R, and per row the complementarity defect as a gap (penetration,
     or a gap left open where y > 0) or as a multiplier (y < 0, or y > 0 where g > 0);
     kappa_i = (1/K_uu + 1/K_ll)^{-1} is the stiffness of the gap at row i (K_uu for
@@ -105,6 +106,14 @@ class ResidualStop:
         """The rule for the difference w = x[:m] - x[m:] (:mod:`.decoupled`)."""
         return self
 
+    def rescaled(self, s: float):
+        """The rule for the system with data / s (:meth:`ComplementaritySystem.rescaled`)."""
+        return self
+
+    def certificate_tol(self, options) -> float:
+        """Tolerance of the exit certificate (:mod:`.certificate`) when this rule's own test stopped the loop."""
+        return options.certificate_tol
+
     def measure(self, rec, system, x, y, r) -> None:
         pass
 
@@ -135,8 +144,8 @@ def linearization_defect(system, x: np.ndarray, y: np.ndarray, r=None) -> float:
     two = system.lo >= 0
     kappa[two] = 1.0 / (1.0 / kappa[two] + 1.0 / dK[system.lo[two]])
     g = system.gap(x)
-    c = np.minimum(g, y)
-    as_gap = g <= y
+    as_gap = system.constraint_weight * g <= y
+    c = np.where(as_gap, g, y)
     return float(np.sqrt(np.sum(r * r / dK) + np.sum(kappa[as_gap] * c[as_gap] ** 2)
                          + np.sum((system.D[~as_gap] * c[~as_gap]) ** 2 / kappa[~as_gap])))
 
@@ -154,6 +163,16 @@ class BalancedStop:
         scale alike."""
         ref = self.reference
         return BalancedStop(Reference(ref.x[:m] - ref.x[m:], ref.weight), self.gamma_balance)
+
+    def rescaled(self, s: float):
+        if s == 1.0:
+            return self
+        return BalancedStop(Reference(self.reference.x / s, self.reference.weight), self.gamma_balance)
+
+    def certificate_tol(self, options) -> float:
+        """The balanced stop leaves a linearization error of relative size gamma_balance: the certificate
+        (penetration, negative multiplier, slackness) is required at that level."""
+        return max(options.certificate_tol, self.gamma_balance)
 
     def measure(self, rec, system, x, y, r) -> None:
         rec.eps_lin = linearization_defect(system, x, y, r)
@@ -175,6 +194,13 @@ class AdaptiveStop:
 
     def on_difference(self, m: int):
         return self
+
+    def rescaled(self, s: float):
+        return self
+
+    def certificate_tol(self, options) -> float:
+        """Not required: the estimators' guaranteed bound certifies the accepted iterate (recorded only)."""
+        return float("inf")
 
     def measure(self, rec, system, x, y, r) -> None:
         pass

@@ -141,6 +141,7 @@ class Problem(Protocol):
     obstacle: Optional[CoefficientFunction]
     dirichlet_names: Tuple[str, ...]
     boundary_order: BoundaryOrder
+    stiffness_scale: float
 
     def data(self) -> Dict[str, CoefficientFunction]:
         """Every datum by name: loads, Dirichlet data, obstacle (the fields :func:`check_data_on_points` checks)."""
@@ -167,6 +168,14 @@ class ContactProblem:
     @property
     def nfields(self) -> int:
         return len(self.field_names)
+
+    @property
+    def stiffness_scale(self) -> float:
+        """Harmonic mean of the tensions: the stiffness with which the gap u1 - u2 (or u - psi) answers a
+        contact force; the algebraic system weighs the gap by it in the C-function
+        (:attr:`~ngcontact.algebra.system.ComplementaritySystem.constraint_weight`)."""
+        mus = [float(m) for m in self.mus]
+        return len(mus) / sum(1.0 / m for m in mus)
 
     @property
     def loads(self) -> tuple:
@@ -225,15 +234,51 @@ def check_data_on_points(problem, values: dict, boundary: np.ndarray, coords: np
             raise ProblemDataError(
                 f"{cls}.{name} is not finite at ({coords[i, 0]:.4g}, {coords[i, 1]:.4g}): {val[i]}"
             )
+    check_magnitudes(problem, values, boundary, coords)
     order = problem.boundary_order
     gap = values[order.upper] - values[order.lower]
-    scale = tol * max(1.0, float(np.max(np.abs(gap[boundary]))) if boundary.any() else 1.0)
-    bad = boundary & (gap < -scale)
+    size = max(float(np.max(np.abs(values[order.upper][boundary]))), float(np.max(np.abs(values[order.lower][boundary])))) \
+        if boundary.any() else 0.0
+    bad = boundary & (gap < -tol * size)  # relative to the data's own size (units of u)
     if bad.any():
         i = int(np.flatnonzero(bad)[np.argmin(gap[bad])])
         raise ProblemDataError(
             f"{cls}: {order.message}; at ({coords[i, 0]:.4g}, {coords[i, 1]:.4g}) the difference is {gap[i]:.3e}"
         )
+
+
+#: magnitudes of the data (in units of u: loads divided by the smallest tension) and of the tensions that the
+#: package computes with: squares of errors and estimators stay in floating-point range
+MAGNITUDE_RANGE = (1e-100, 1e100)
+
+
+def check_magnitudes(problem, values: dict, boundary: np.ndarray, coords: np.ndarray) -> None:
+    """Refuse data whose size is outside :data:`MAGNITUDE_RANGE` (a named error, never silently
+    underflowing errors and estimators): the tensions, and each datum where it matters (loads divided by
+    the smallest tension, so in units of u).  The problem is linear in (f, g, psi): scaled data give the
+    scaled solution, so such a problem is solved by scaling it into the range."""
+    lo, hi = MAGNITUDE_RANGE
+    cls = type(problem).__name__
+    mus = [float(m) for m in problem.mus]
+    for i, mu in enumerate(mus):
+        if not lo <= mu <= hi:
+            names = ("mu",) if len(mus) == 1 else ("mu1", "mu2")
+            raise ProblemDataError(f"{cls}.{names[i]} = {mu:.3e} is outside [{lo:g}, {hi:g}]: rescale the problem "
+                                   f"(u solves the same problem with mu, f divided by the same factor)")
+    for name, val in values.items():
+        where = boundary if name in problem.dirichlet_names else np.ones(len(val), dtype=bool)
+        a = np.abs(val[where])
+        if not len(a):
+            continue
+        i = int(np.argmax(a))
+        size = float(a[i]) / (min(mus) if name in problem.load_names else 1.0)
+        if size != 0.0 and not lo <= size <= hi:
+            j = int(np.flatnonzero(where)[i])
+            unit = " / min(mu)" if name in problem.load_names else ""
+            raise ProblemDataError(
+                f"{cls}.{name}: max |{name}|{unit} = {size:.3e} (at ({coords[j, 0]:.4g}, {coords[j, 1]:.4g})) is "
+                f"outside [{lo:g}, {hi:g}]: divide f, g and psi by a common factor s and multiply the solution by s "
+                f"(the problem is linear in its data)")
 
 
 def data_fields(problem) -> dict:

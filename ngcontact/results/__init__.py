@@ -46,6 +46,15 @@ newton_converged    1 if the Newton mode's stopping criterion was met, else 0: |
                     (direct, gmres, inexact) or eta_lin <= gamma_lin eta_disc (adaptive)
 res_final           final ||Phi||/||F|| (adaptive: it contains the algebraic residual of the accepted
                     GMRES iterate and can be O(1) when the estimators say the error is discretization-dominated)
+certified           1 if the exit certificate holds at cert_tol (ngcontact.newton.certificate), else 0
+cert_penetration, cert_negativity, cert_slackness
+                    the certificate: max(-g)^+ / max(|x|, |b|), max(-y)^+ / max(|y|, cert_tol |F| / max D),
+                    max_i min(g_i^+ / max(|x|, |b|), y_i^+ / ...) (sup norms; invariant under scaling)
+cert_tol            tolerance the stopping rule requires of the certificate: 1e3 tol for the residual test,
+                    gamma_balance for the balanced stop, inf (recorded only) for the adaptive stop, whose
+                    iterate the estimators certify
+newton_remedies     safeguards the Newton loop took (cycling of Newton-min, stalled FB line search:
+                    ngcontact.newton.safeguards); each is logged in the progress output
 newton_balanced     --newton-stop balanced: 1 if the level stopped on eps_lin <= gamma_balance eps_disc
 eps_lin_final, eps_disc_final
                     --newton-stop balanced: linearization defect and discretization proxy of

@@ -18,7 +18,8 @@ KEY_COLUMNS = ("level", "n", "t")
 
 HISTORY_COLUMNS = [
     *KEY_COLUMNS, "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "err_energy", "rate_energy", "err_max_nodal",
-    "err_jump", "newton_its", "newton_converged", "res_final", "newton_balanced",
+    "err_jump", "newton_its", "newton_converged", "res_final", "certified", "cert_penetration", "cert_negativity",
+    "cert_slackness", "cert_tol", "newton_remedies", "newton_balanced",
     "eps_lin_final", "eps_disc_final", "active_nodes", "linear_size",
     "gmres_its", "gmres_max_step", "gmres_first_step", "n_estimates", "time_estimate_newton_s",
     "eta_disc_final", "eta_lin_final", "eta_alg_final", "gap_min", "lam_min",

@@ -176,6 +176,7 @@ class RunWriter:
             "options": asdict(result.options),
             "converged": result.converged,
             "failures": result.failures,
+            "safeguards": list(getattr(result, "notes", [])),
             **({"stop_reason": result.stop_reason} if getattr(result, "stop_reason", None) else {}),
             "complete": bool(complete),
             "reason": reason,
@@ -194,6 +195,7 @@ class _Partial:
         self.rows, self.iterations = result.rows[:rows], result.iterations[:iterations]
         done = {r["level"] for r in self.rows}
         self.failures = [f for f in result.failures if _failure_level(f) in done]
+        self.notes = [f for f in getattr(result, "notes", []) if _failure_level(f) in done]
         self.converged = not self.failures
         self.stop_reason = None  # the run has not ended (or ended by an exception: the summary's reason)
 

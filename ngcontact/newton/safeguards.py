@@ -1,0 +1,65 @@
+"""Safeguards of the Newton loop: cycling of Newton-min and stalling of Newton-FB, detected and remedied.
+
+* **Cycling** (Newton-min): the active set {w g <= y} of iterate k equals the one of an iterate
+  j <= k - 2 and differs from that of k - 1, so the iteration has come back to a set it already left.
+  Remedies, in this order: solve the steps with a fresh factorization (an inexact PCG solve with a reused
+  factorization can flip a row back and forth, :mod:`ngcontact.algebra.reuse`), then continue with
+  Newton-FB and its line search (globally convergent on the merit function).
+* **Stalling** (Newton-FB): the Armijo line search fails (step < min_step).  Near degenerate rows
+  (g = y = 0, e.g. the P2 vertices, whose dual-basis multiplier has a zero-mean partner) the FB direction
+  can be a poor descent direction; the remedy continues with full Newton-min steps from the current iterate.
+
+Each remedy is taken at most once per solve; trouble after it stops the loop with a named reason.
+The remedies are logged: ``IterationRecord.remedy`` (index in :data:`REMEDIES`) and
+``NewtonResult.remedies`` (one line each).
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+__all__ = ["REMEDIES", "Safeguards"]
+
+#: IterationRecord.remedy codes
+REMEDIES = ("none", "fresh factorization", "switch to Newton-min", "switch to Newton-FB")
+
+
+class Safeguards:
+    """State of the cycling and stalling detection of one Newton solve."""
+
+    def __init__(self, session=None):
+        self.session = session  # the linear strategy's session (set once started)
+        self.seen: dict = {}  # signature of an active set -> last iteration that had it
+        self.prev: Optional[bytes] = None
+        self.used: set = set()
+        self.log: list = []
+
+    @staticmethod
+    def signature(active: np.ndarray) -> bytes:
+        return np.packbits(active).tobytes()
+
+    def cycling(self, k: int, active: np.ndarray) -> Optional[int]:
+        """The earlier iteration j <= k - 2 with the same active set as k (and a different one at k - 1), else None."""
+        sig = self.signature(active)
+        j = self.seen.get(sig)
+        back = j is not None and j <= k - 2 and sig != self.prev
+        self.seen[sig], self.prev = k, sig
+        return j if back else None
+
+    def next_remedy(self, trouble: str) -> Optional[int]:
+        """The remedy code for ``trouble`` ('cycling' or 'stall') not used yet, or None (none left)."""
+        if trouble == "cycling":
+            options = ([1] if getattr(self.session, "can_refresh", False) else []) + [3]
+        else:
+            options = [2]
+        for code in options:
+            if code not in self.used:
+                self.used.add(code)
+                if code == 1:
+                    self.session.fresh()
+                return code
+        return None
+
+    def note(self, k: int, code: int, why: str) -> None:
+        self.log.append(f"iteration {k}: {why}: {REMEDIES[code]}")

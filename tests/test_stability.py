@@ -1,0 +1,247 @@
+"""Stiff and extreme cases (issue 20): scale-invariant stopping, exit certificate, Newton safeguards, data range.
+
+The fast subset of the stability suite (ngcontact/studies/stability.py, ``make stability``) runs once per
+module; the other tests check the pieces on small systems."""
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from ngcontact.algebra.system import ComplementaritySystem
+from ngcontact.drivers import RunOptions, run_scene
+from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton.certificate import certificate
+from ngcontact.newton.linear import DirectSolve
+from ngcontact.newton.loop import round_off_hint
+from ngcontact.problems import ProblemDataError
+from ngcontact.problems.manufactured import disk_contact, scale_problem
+from ngcontact.scenes import Scene
+from ngcontact.studies import stability
+
+
+@pytest.fixture(scope="module")
+def quick():
+    outcomes, verdicts = stability.run_all(stability.quick_cases(), progress=lambda s: None)
+    return {o.case.name: (o, v) for o, v in zip(outcomes, verdicts)}
+
+
+def test_quick_stability_subset_passes_the_rule(quick):
+    failed = {name: verdict for name, (out, (ok, verdict)) in quick.items() if not ok}
+    assert not failed
+    assert {"test1-p1-fb-tension1e+09", "offcentre-p2-fb", "offcentre-p1-balanced",
+            "test1-p1-min-data1e-150"} <= set(quick)
+
+
+def test_tension_scale_1e9_gives_the_unscaled_solution_with_fb(quick):
+    """Tensions, loads and lam times 1e9, u unchanged: the max nodal error is the unscaled one (a mixed-unit
+    residual test stopped such runs after 1 iteration with a 7x larger error)."""
+    out, (ok, verdict) = quick["test1-p1-fb-tension1e+09"]
+    base, _ = quick["test1-p1-fb"]
+    assert out.status == "converged" and ok and verdict.startswith("= test1-p1-fb")
+    for r, b in zip(out.rows, base.rows):
+        assert abs(r["err_max_nodal"] - b["err_max_nodal"]) <= 1e-8 * b["err_max_nodal"]
+        assert r["certified"] == 1 and r["cert_penetration"] <= 1e-7
+
+
+def test_tension_scale_keeps_newton_min_iterates():
+    """A power-of-2 tension scale: the same Newton counts and active sets, level by level (the gap enters the
+    C-function weighted by the harmonic mean of the tensions)."""
+    runs = []
+    for t in (1.0, 2.0 ** 30):
+        scene = Scene("t", None, scale_problem(disk_contact(), tension=t))
+        res = run_scene(scene, RunOptions.for_scene(scene, order=1, levels=3, start="cold"), threads=1)
+        runs.append(res)
+    a, b = runs
+    assert [r["newton_its"] for r in a.rows] == [r["newton_its"] for r in b.rows]
+    assert [r["active_nodes"] for r in a.rows] == [r["active_nodes"] for r in b.rows]
+    assert [i["n_active"] for i in a.iterations] == [i["n_active"] for i in b.iterations]
+
+
+def test_fb_at_p2_does_not_stall(quick):
+    """Two membranes mu = (1, 3), off-centre contact disk, P2, Newton-FB: the Armijo line search fails on the
+    finer levels; the loop continues with Newton-min steps, converges with a certificate and logs it."""
+    out, (ok, _) = quick["offcentre-p2-fb"]
+    assert out.status == "converged" and ok
+    assert all(r["certified"] == 1 for r in out.rows)
+    assert sum(r["newton_remedies"] for r in out.rows) >= 1
+
+
+def test_balanced_stop_returns_a_feasible_multiplier(quick):
+    """The balanced stop accepted iterates with lam_min = -0.0056 (lam_max = 0.0081) on level 2 of this case:
+    it now also needs the certificate at gamma_balance."""
+    out, (ok, _) = quick["offcentre-p1-balanced"]
+    assert out.status == "converged" and ok
+    for r in out.rows:
+        assert r["certified"] == 1 and r["cert_negativity"] <= 1e-3 and r["lam_min"] >= -1e-6
+
+
+def test_data_outside_the_range_are_refused_with_the_field_named(quick):
+    out, (ok, verdict) = quick["test1-p1-min-data1e-150"]
+    assert out.status == "refused" and ok and "f1" in out.reason and "outside" in out.reason
+    scene = Scene("t", None, scale_problem(disk_contact(), data=1e-160))
+    with pytest.raises(ProblemDataError, match=r"f1: max \|f1\| / min\(mu\) = .*e-16[0-9] .* outside"):
+        run_scene(scene, RunOptions.for_scene(scene, order=1, levels=1), threads=1)
+    scene = Scene("t", None, scale_problem(disk_contact(), tension=1e-120))
+    with pytest.raises(ProblemDataError, match="mu1 = 1.000e-120 is outside"):
+        run_scene(scene, RunOptions.for_scene(scene, order=1, levels=1), threads=1)
+
+
+def test_data_scale_1e_50_gives_the_same_iterates(quick):
+    out, (ok, verdict) = quick["test1-p1-min-data1e-50"]
+    base, _ = quick["test1-p1-min"]
+    assert ok and verdict.startswith("= test1-p1-min")
+    assert [r["newton_its"] for r in out.rows] == [r["newton_its"] for r in base.rows]
+
+
+# ---------------------------------------------------------------- small systems
+def _obstacle_system(n=30, s=1.0, t=1.0):
+    """1D -u'' = f - lam on n interior nodes, u >= psi: K = t tridiag(-1, 2, -1), one-sided rows."""
+    K = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1], format="csr") * t
+    xs = np.arange(1, n + 1) / (n + 1)
+    F = -0.5 * np.ones(n) / (n + 1) * s * t
+    psi = (-0.02 - 0.1 * (xs - 0.5) ** 2) * s
+    return ComplementaritySystem(K, F, np.arange(n), -np.ones(n, dtype=np.int64), psi, np.ones(n),
+                                 stiffness_scale=t)
+
+
+def test_certificate_measures_each_condition_in_its_own_units():
+    sysm = _obstacle_system()
+    x = sysm.b + 0.1
+    y = np.zeros(sysm.m)
+    assert certificate(sysm, x, y, 1e-7).valid
+    x[3] = sysm.b[3] - 0.01  # penetration 0.01 relative to max |x| ~ 0.1
+    c = certificate(sysm, x, y, 1e-7)
+    assert not c.valid and 0.05 < c.penetration < 0.2 and c.negativity == 0 and "penetration" in c.failure()
+    x[3] = sysm.b[3] + 0.1
+    y[5], y[6] = 1.0, -0.5  # a positive multiplier where the gap is open, and a negative one
+    c = certificate(sysm, x, y, 1e-7)
+    assert c.negativity == pytest.approx(0.5) and c.slackness > 0.5
+    for s, t in ((1e-80, 1.0), (1e80, 1e-20), (3.0, 7e9)):
+        scaled = _obstacle_system(s=s, t=t)
+        c2 = certificate(scaled, x * s, y * s * t, 1e-7)
+        assert c2.penetration == pytest.approx(c.penetration, rel=1e-12)
+        assert c2.negativity == pytest.approx(c.negativity, rel=1e-12)
+        assert c2.slackness == pytest.approx(c.slackness, rel=1e-12)
+
+
+@pytest.mark.parametrize("s,t", [(2.0 ** -500, 1.0), (2.0 ** 480, 1.0), (1.0, 2.0 ** 90), (2.0 ** -400, 2.0 ** 200)])
+def test_newton_iterates_do_not_depend_on_the_data_scale(s, t):
+    """Newton-min and FB on the 1D obstacle system with data times s (tensions times t): the same iterations
+    and the solution times s (to round-off: threaded factorizations are not bitwise reproducible); no squared
+    residual under- or overflows."""
+    for cfun in ("min", "fb"):
+        ref = semismooth_newton(_obstacle_system(), np.zeros(30), np.zeros(30), NewtonOptions(cfun=cfun))
+        res = semismooth_newton(_obstacle_system(s=s, t=t), np.zeros(30), np.zeros(30), NewtonOptions(cfun=cfun))
+        assert ref.converged and res.converged and res.iterations == ref.iterations
+        assert np.allclose(res.x / s, ref.x, rtol=1e-12, atol=0) and np.allclose(res.y / (s * t), ref.y, rtol=1e-12,
+                                                                                  atol=1e-14 * np.abs(ref.y).max())
+        assert np.allclose([h.res for h in res.history], [h.res for h in ref.history], rtol=1e-12, atol=0)
+
+
+class _BrokenSolve:
+    """A linear strategy whose steps jump between two fixed iterates (a wrong linear solver) until it is told
+    to factorize afresh (``fresh``) or, with ``refresh=False``, for its first ``broken`` steps."""
+
+    record_type = DirectSolve.record_type
+
+    def __init__(self, refresh=True, broken=10 ** 9):
+        self.refresh, self.broken = refresh, broken
+
+    def start(self, system, estimates):
+        outer = self
+        exact = DirectSolve(reuse=False).start(system, estimates)
+
+        class Session:
+            fixed = False
+            calls = 0
+            can_refresh = outer.refresh
+
+            def fresh(self):
+                self.fixed = True
+
+            def step(self, k, x, y, c, Ca, Cb, res_prev):
+                self.calls += 1
+                trial = exact.step(k, x, y, c, Ca, Cb, res_prev)
+                if self.fixed or self.calls > outer.broken:
+                    return trial
+                n = len(x)
+                up = (self.calls % 2 == 1)
+                trial.x = system.b + (0.05 if up else -0.05) * (np.arange(n) % 3 == 0)
+                trial.y = np.where(np.arange(n) % 3 == 0, 0.0 if up else 1.0, 0.0)
+                return trial
+
+            def after_step(self, k, x, y, step):
+                return {}
+
+        return Session()
+
+
+def test_cycling_is_detected_and_a_fresh_factorization_ends_it():
+    res = semismooth_newton(_obstacle_system(), np.zeros(30), np.zeros(30), NewtonOptions(maxit=50),
+                            linear=_BrokenSolve())
+    assert res.converged and res.certificate.valid
+    assert [h.remedy for h in res.history].count(1) == 1
+    assert "fresh factorization" in res.remedies[0] and "active set of iteration" in res.remedies[0]
+
+
+def test_cycling_without_refactorization_switches_to_fb():
+    res = semismooth_newton(_obstacle_system(), np.zeros(30), np.zeros(30), NewtonOptions(maxit=50),
+                            linear=_BrokenSolve(refresh=False, broken=4))
+    assert res.converged and res.certificate.valid
+    assert [h.remedy for h in res.history].count(3) == 1 and "switch to Newton-FB" in res.remedies[0]
+
+
+def test_cycling_that_no_remedy_ends_is_a_named_failure():
+    res = semismooth_newton(_obstacle_system(), np.zeros(30), np.zeros(30), NewtonOptions(maxit=50),
+                            linear=_BrokenSolve(refresh=False))
+    assert not res.converged
+    assert "(after the remedies: iteration" in res.reason
+
+
+def test_round_off_hint_only_near_the_tolerance():
+    assert round_off_hint(5e-8, 1e-10) == ""
+    assert "within 100x of tol = 1e-10" in round_off_hint(1.07e-10, 1e-10)
+
+
+def test_manufactured_disk_family_solves_its_pde():
+    """disk_contact data: f1 = -mu1 Lap u1 - lam, f2 = -mu2 Lap u2 + lam (finite differences, off the contact
+    circle), u1 - u2 >= 0, lam >= 0, (u1 - u2) lam = 0 at sample points."""
+    from ngsolve import Mesh
+    from netgen.geom2d import unit_square
+
+    mesh = Mesh(unit_square.GenerateMesh(maxh=0.2))
+    p = disk_contact(mu1=0.3, mu2=5.0, centre=(0.42, 0.56), R=0.3, N=3, M=2, A=2.0, b=0.1, lam_r3=False)
+    ex = p.exact
+    rng = np.random.default_rng(1)
+    h = 1e-3
+    checked = 0
+    for px, py in rng.uniform(0.05, 0.95, size=(60, 2)):
+        r = math.hypot(px - 0.42, py - 0.56)
+        if abs(r - 0.3) < 5 * h:
+            continue
+        ev = lambda cf, a, b: cf(mesh(a, b))  # noqa: E731
+        for u, f, mu, sgn in ((ex.u1, p.f1, p.mu1, -1), (ex.u2, p.f2, p.mu2, 1)):
+            lap = (ev(u, px + h, py) + ev(u, px - h, py) + ev(u, px, py + h) + ev(u, px, py - h)
+                   - 4 * ev(u, px, py)) / h ** 2
+            assert abs(ev(f, px, py) - (-mu * lap + sgn * ev(ex.lam, px, py))) <= 1e-4 * (1 + abs(ev(f, px, py)))
+        gap, lam = ev(ex.u1, px, py) - ev(ex.u2, px, py), ev(ex.lam, px, py)
+        assert gap >= 0 and lam >= 0 and gap * lam == 0
+        checked += 1
+    assert checked > 40
+
+
+def test_certificate_keeps_a_mixed_unit_residual_test_from_stopping_early(quick, monkeypatch):
+    """Tensions times 1e9 and no tension scale declared (constraint weight 1): ||Phi|| / ||F|| is dominated by
+    the PDE residual and falls below tol after one FB step on the finer levels, with open or penetrated gaps;
+    the exit certificate makes the loop go on to the solution of the unscaled problem."""
+    from ngcontact.problems.base import ContactProblem
+
+    monkeypatch.setattr(ContactProblem, "stiffness_scale", property(lambda self: 1.0))
+    base, _ = quick["test1-p1-fb"]
+    scene = Scene("t", None, scale_problem(disk_contact(), tension=1e9))
+    res = run_scene(scene, RunOptions.for_scene(scene, order=1, levels=4, cfun="fb"), threads=1)
+    assert res.converged
+    for r, b in zip(res.rows, base.rows):
+        assert r["certified"] == 1
+        assert abs(r["err_max_nodal"] - b["err_max_nodal"]) <= 1e-6 * b["err_max_nodal"]
