@@ -57,6 +57,7 @@ from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv
 from ngsolve.comp import PatchwiseSolve
 
 from ..domains import DIRICHLET
+from .boundary import boundary_vertex_values, residual_multiplier
 from .moments import data_rules, vertex_function_values, vertex_moment_term, vertex_rule
 from .multipliers import ContactMultiplier, PatchContactMultiplier, ShapedContactMultiplier, multiplier_p1
 from .options import MULTIPLIERS, EstimatorOptions
@@ -374,10 +375,15 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
     moments = dv.D * sv.y
     if p > 1 and multiplier == "shape":
         lam_rule = patch_solver(dv, q).shaped_rule_order(bonus + 1)
-        lam, vertex_values = ShapedContactMultiplier(dv, sv.y, sv.gfs["lam"], rule_order=lam_rule).terms(moments)
+        lam, vertex_values = ShapedContactMultiplier(dv, sv.y, sv.gfs["lam"], rule_order=lam_rule,
+                                                     boundary_shape=residual_multiplier(sv)).terms(moments)
         lam_term, lam_order = None, p
     elif p == 1 or multiplier in ("p1", "contact"):
-        lam = multiplier_p1(sv) if p == 1 or multiplier == "p1" else PatchContactMultiplier(dv, sv.y)(moments)
+        if p == 1 or multiplier == "p1":
+            lam = multiplier_p1(sv)
+        else:  # the residual multiplier at the boundary vertices of contact elements (.boundary)
+            cmult = PatchContactMultiplier(dv, sv.y)
+            lam = cmult(moments, boundary=boundary_vertex_values(sv, cmult.contact))
         if batched:  # patch-constant sources, exact for every q and on curved elements
             vertex_values = [(vertex_function_values(dv, lam), None)]
             lam_term = None

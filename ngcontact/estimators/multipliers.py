@@ -31,6 +31,7 @@ from ngsolve import (H1, L2, TRIG, BilinearForm, CoefficientFunction, Discontinu
                      IntegrationRule, LinearForm, TaskManager, dx)
 
 from ..domains import DIRICHLET
+from .boundary import boundary_vertices, contact_band
 from .moments import data_rules, vertex_moments
 from .view import DiscretizationView, SolutionView
 
@@ -201,11 +202,17 @@ class PatchContactMultiplier:
                               1.0 / vol[ev])
         self._ev = ev
 
-    def __call__(self, functional: np.ndarray, name: str = "lam_hat") -> GridFunction:
-        """lam^ (elementwise P1) for a functional on the interior Lagrange basis (e.g. D X3)."""
+    def __call__(self, functional: np.ndarray, name: str = "lam_hat",
+                 boundary: Optional[np.ndarray] = None) -> GridFunction:
+        """lam^ (elementwise P1) for a functional on the interior Lagrange basis (e.g. D X3); ``boundary``
+        ((ne, 3), NaN where unused): values g_a|_K replacing those of the Dirichlet boundary vertices
+        (:func:`.boundary.boundary_vertex_values`; boundary patches need no compatibility)."""
         m = self.Psi.T @ np.asarray(functional, float)
+        vals = self._coef * m[self._ev]
+        if boundary is not None:
+            vals = np.where(np.isnan(boundary), vals, boundary)
         gf = GridFunction(self.V, name=name)
-        gf.vec.FV().NumPy()[:] = (self._coef * m[self._ev]).ravel()
+        gf.vec.FV().NumPy()[:] = vals.ravel()
         return gf
 
 
@@ -233,16 +240,28 @@ class ShapedContactMultiplier:
     rule_order : int, optional
         order of the triangle rule of the patch sources (:meth:`.patches.PatchSolver.shaped_rule_order`),
         used for (psi_a phi, 1) too, so that the patch data are compatible to round-off.
+    boundary_shape : CoefficientFunction, optional
+        the shape on the contact elements near the boundary vertices of contact elements
+        (:func:`.boundary.contact_band`), where the dual-basis lam_h, which vanishes at the boundary
+        nodes, is polluted (:func:`.boundary.residual_multiplier`); the boundary vertices then take
+        s_a = 1 (their patches need no compatibility), so lam^ ~ boundary_shape^+ there.
     """
 
     def __init__(self, dv: DiscretizationView, y_marker, lam_h, *, low: float = 0.5, high: float = 2.0,
-                 tol: float = 1e-8, rule_order: Optional[int] = None):
+                 tol: float = 1e-8, rule_order: Optional[int] = None, boundary_shape=None):
         self.low, self.high = float(low), float(high)
         self.const = PatchContactMultiplier(dv, y_marker, tol=tol)
         mesh, V = dv.mesh, self.const.V
         contact = GridFunction(L2(mesh, order=0), name="contact_elements")
         contact.vec.FV().NumPy()[:] = self.const.contact
-        self.shape = contact * IfPos(lam_h, lam_h, 0.0)
+        self._fixed = np.zeros(mesh.nv, bool)  # vertices with s_a = 1
+        if boundary_shape is None:
+            self.shape = contact * IfPos(lam_h, lam_h, 0.0)
+        else:
+            layer = GridFunction(L2(mesh, order=0), name="boundary_band")
+            layer.vec.FV().NumPy()[:] = contact_band(dv, self.const.contact)
+            self.shape = contact * IfPos(layer, IfPos(boundary_shape, boundary_shape, 0.0), IfPos(lam_h, lam_h, 0.0))
+            self._fixed = boundary_vertices(dv)
         rule = data_rules(dv)["mass"] if rule_order is None else {TRIG: IntegrationRule(TRIG, int(rule_order))}
         with TaskManager():
             A = LinearForm(self.shape * V.TestFunction() * dx(intrules=rule)) \
@@ -255,6 +274,7 @@ class ShapedContactMultiplier:
         interior Lagrange basis (e.g. D X3)."""
         m = self.const.Psi.T @ np.asarray(functional, float)
         s = np.where(self._Aphi > 0, m / np.where(self._Aphi > 0, self._Aphi, 1.0), -1.0)
+        s = np.where(self._fixed & (self._Aphi > 0), 1.0, s)
         shaped = (s >= self.low) & (s <= self.high)
         vs = np.where(shaped[self._ev], s[self._ev], 0.0)                                   # (ne, 3)
         vc = np.where(shaped[self._ev], 0.0, self.const._coef * m[self._ev])               # (ne, 3)
