@@ -287,14 +287,15 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
     if pair:
         # two admissible multipliers, two guaranteed bounds: keep the smaller (module doc, "Multiplier")
         both = [_bound(sv, q, opts, reconstruct(sv, q, multiplier=m, batched=opts.batched,
-                                                regularization=opts.regularization)) for m in pair]
+                                                regularization=opts.regularization,
+                                                boundary=opts.boundary_multiplier)) for m in pair]
         est = min(both, key=lambda e: e.eta)
         est.multiplier = pair[0] if est is both[0] else pair[1]
         est.time_flux = sum(e.time_flux for e in both)
     else:
         if flux is None:
             flux = reconstruct(sv, q, multiplier=opts.multiplier, batched=opts.batched,
-                               regularization=opts.regularization)
+                               regularization=opts.regularization, boundary=opts.boundary_multiplier)
         est = _bound(sv, q, opts, flux)
     est.time_total = time.perf_counter() - t0
     if err_energy is None and errors:

@@ -21,9 +21,9 @@ O(h^{p+1/2}) in eta_F.  Where it is used (elsewhere the multipliers of :mod:`.mu
 * :class:`.multipliers.PatchContactMultiplier` -- rho_h^+ at the boundary vertices of the contact
   elements (:func:`boundary_vertex_values`);
 * :class:`.multipliers.ShapedContactMultiplier` -- the shape rho_h^+ instead of lam_h^+ on the contact
-  elements of :func:`contact_band`: the dual-basis lam_h is the solution of a global mass system with
-  zero boundary values, so its error at the boundary spreads over a few element layers
-  (results/stability/BOUNDARY_CONTACT.md measures one, two and three layers).
+  elements connected to the boundary (:func:`contact_band`): the dual-basis lam_h solves a global mass
+  system with zero boundary values, so its error at the boundary spreads inwards, geometrically
+  decaying per element layer but over more layers the finer the mesh and the higher p.
 """
 from __future__ import annotations
 
@@ -34,9 +34,6 @@ from ..domains import DIRICHLET
 from .view import DiscretizationView, SolutionView
 
 __all__ = ["boundary_vertices", "contact_band", "residual_multiplier", "vertex_values", "boundary_vertex_values"]
-
-#: element layers of :func:`contact_band`
-BAND_LAYERS = 3
 
 #: the vertices of NGSolve's reference triangle, in the local vertex order of the element
 _VERTICES = [(1.0, 0.0), (0.0, 1.0), (0.0, 0.0)]
@@ -51,18 +48,19 @@ def boundary_vertices(dv: DiscretizationView) -> np.ndarray:
     return c["boundary_vertices"]
 
 
-def contact_band(dv: DiscretizationView, contact: np.ndarray, layers: int = BAND_LAYERS) -> np.ndarray:
-    """(ne,) bool: the contact elements within ``layers`` element layers, through contact elements, of the
-    Dirichlet boundary vertices of contact elements (empty when no contact element touches the boundary)."""
+def contact_band(dv: DiscretizationView, contact: np.ndarray) -> np.ndarray:
+    """(ne,) bool: the contact elements connected, through contact elements sharing a vertex, to a Dirichlet
+    boundary vertex of a contact element (empty when no contact element touches the boundary)."""
     ev = dv.element_vertices()
     contact = np.asarray(contact, bool)
     reached = boundary_vertices(dv) & (np.bincount(ev[contact].ravel(), minlength=dv.mesh.nv) > 0)
     band = np.zeros(len(ev), bool)
-    for _ in range(layers):
-        band = contact & reached[ev].any(axis=1)
-        reached = np.zeros_like(reached)
+    while True:
+        grown = contact & reached[ev].any(axis=1)
+        if (grown == band).all():
+            return band
+        band = grown
         reached[ev[band].ravel()] = True
-    return band
 
 
 def residual_multiplier(sv: SolutionView) -> CoefficientFunction:
