@@ -12,14 +12,16 @@ h |layer|^{1/2} = O(h^{3/2}) in eta_F, against the O(h^p) error.
 The value used instead is the element residual of the discrete equations (the pointwise
 multiplier of the discrete solution): from -mu_a Lap u_a - s_a lam = f_a,
 
-    rho_h|_K = (sum_a s_a (-mu_a Lap u_ah - f_a) / mu_a) / (sum_a 1 / mu_a)     (obstacle: -mu Lap u_h - f),
+    rho_h|_K = (sum_a s_a (-mu_a Lap u_ah - Pi f_a) / mu_a) / (sum_a 1 / mu_a)     (obstacle: -mu Lap u_h - Pi f),
 
-the weights 1/mu_a minimizing sum_a mu_a^{-1} ||s_a rho - (-mu_a Lap u_ah - f_a)||_K^2, i.e. the
-flux misfit of both fields.  rho_h = lam + O(h^{p-1}) on contact elements, so the layer costs
-O(h^{p+1/2}) in eta_F.  Where it is used (elsewhere the multipliers of :mod:`.multipliers` are unchanged):
+Pi the elementwise L2 projection onto P_{p-2} (the degree of Lap u_ah), the weights 1/mu_a minimizing
+sum_a mu_a^{-1} ||s_a rho - (-mu_a Lap u_ah - Pi f_a)||_K^2, i.e. the flux misfit of both fields.
+rho_h = lam + O(h^{p-1}) on contact elements, so the layer costs O(h^{p+1/2}) in eta_F.  Where it is used (elsewhere the multipliers of :mod:`.multipliers` are unchanged):
 
 * :class:`.multipliers.PatchContactMultiplier` -- rho_h^+ at the boundary vertices of the contact
   elements (:func:`boundary_vertex_values`);
+* :class:`.multipliers.ContactMultiplier` -- the mean of these values over the contact elements of a boundary
+  vertex, as the value of the fitted P1 function there (:func:`boundary_nodal_values`);
 * :class:`.multipliers.ShapedContactMultiplier` -- the shape rho_h^+ instead of lam_h^+ on the contact
   elements connected to the boundary (:func:`contact_band`): the dual-basis lam_h solves a global mass
   system with zero boundary values, so its error at the boundary spreads inwards, geometrically
@@ -28,12 +30,13 @@ O(h^{p+1/2}) in eta_F.  Where it is used (elsewhere the multipliers of :mod:`.mu
 from __future__ import annotations
 
 import numpy as np
-from ngsolve import H1, VOL, CoefficientFunction, IntegrationRule, Trace
+from ngsolve import H1, L2, VOL, CoefficientFunction, GridFunction, IntegrationRule, Trace
 
 from ..domains import DIRICHLET
 from .view import DiscretizationView, SolutionView
 
-__all__ = ["boundary_vertices", "contact_band", "residual_multiplier", "vertex_values", "boundary_vertex_values"]
+__all__ = ["boundary_vertices", "contact_band", "residual_multiplier", "vertex_values", "boundary_vertex_values",
+           "boundary_nodal_values"]
 
 #: the vertices of NGSolve's reference triangle, in the local vertex order of the element
 _VERTICES = [(1.0, 0.0), (0.0, 1.0), (0.0, 0.0)]
@@ -64,11 +67,16 @@ def contact_band(dv: DiscretizationView, contact: np.ndarray) -> np.ndarray:
 
 
 def residual_multiplier(sv: SolutionView) -> CoefficientFunction:
-    """rho_h, the elementwise multiplier of the discrete solution (module doc)."""
+    """rho_h, the elementwise multiplier of the discrete solution (module doc), with f_a replaced by its
+    elementwise L2 projection onto P_{p-2}, the degree of Lap u_ah: rho_h in P_{p-2}(K), whose error
+    comes from lam and u - u_h only (not from the variation of f_a)."""
+    dv = sv.disc
+    Q = L2(dv.mesh, order=max(dv.order - 2, 0))
     num, den = CoefficientFunction(0.0), 0.0
     for fd in sv.fields:
-        lap = Trace(fd.u.Operator("hesse"))
-        num = num + (fd.sign / fd.mu) * (-fd.mu * lap - fd.f)
+        f = GridFunction(Q)
+        f.Set(fd.f, bonus_intorder=dv.quad_bonus + 4)
+        num = num + (fd.sign / fd.mu) * (-fd.mu * Trace(fd.u.Operator("hesse")) - f)
         den += 1.0 / fd.mu
     return num / den
 
@@ -90,3 +98,14 @@ def boundary_vertex_values(sv: SolutionView, contact: np.ndarray) -> np.ndarray:
     if on.any():
         out[on] = np.maximum(vertex_values(dv, residual_multiplier(sv))[on], 0.0)
     return out
+
+
+def boundary_nodal_values(sv: SolutionView, contact: np.ndarray) -> np.ndarray:
+    """(nv,) the mean of :func:`boundary_vertex_values` over the contact elements of every Dirichlet boundary
+    vertex, NaN at the other vertices."""
+    ev = sv.disc.element_vertices()
+    vals = boundary_vertex_values(sv, contact)
+    on = ~np.isnan(vals)
+    n = np.bincount(ev[on], minlength=sv.disc.mesh.nv)
+    total = np.bincount(ev[on], weights=vals[on], minlength=sv.disc.mesh.nv)
+    return np.where(n > 0, total / np.maximum(n, 1), np.nan)

@@ -57,7 +57,7 @@ from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv
 from ngsolve.comp import PatchwiseSolve
 
 from ..domains import DIRICHLET
-from .boundary import boundary_vertex_values, residual_multiplier
+from .boundary import boundary_nodal_values, boundary_vertex_values, residual_multiplier
 from .moments import data_rules, vertex_function_values, vertex_moment_term, vertex_rule
 from .multipliers import ContactMultiplier, PatchContactMultiplier, ShapedContactMultiplier, multiplier_p1
 from .options import MULTIPLIERS, EstimatorOptions
@@ -349,7 +349,7 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
     regularization : float, optional
         eps of the ``PatchwiseSolve`` path (default :func:`patch_regularization`).
     boundary : bool
-        p >= 2, ``"contact"`` and ``"shape"``: the residual multiplier of :mod:`.boundary` where contact
+        p >= 2, ``"contact"``, ``"fit"`` and ``"shape"``: the residual multiplier of :mod:`.boundary` where contact
         reaches the Dirichlet boundary.
     """
     t0 = time.perf_counter()
@@ -395,7 +395,8 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
             lam_term, lam_dx = vertex_moment_term(dv.mesh, lam, q), dx(intrules={TRIG: vertex_rule()})
     else:  # lam^ (contact-weighted L2 fit) or the dual-basis lam_h: exact product with the FE mass rule
         if multiplier == "fit":
-            lam = ContactMultiplier(dv, sv.y)(moments)
+            fit = ContactMultiplier(dv, sv.y)
+            lam = fit(moments, boundary=boundary_nodal_values(sv, fit.contact) if boundary else None)
         else:
             lam, lam_order = sv.gfs["lam"], p
 

@@ -115,6 +115,7 @@ class ContactMultiplier:
         ev = dv.element_vertices()
         k = _contact_vertices(dv, y_marker, tol)[ev].sum(axis=1)
         winv = np.where(k == 3, 1.0, np.where(k > 0, mixed, empty))
+        self.contact = k == 3
         self.n_contact_elements = int((k == 3).sum())
         P0 = L2(mesh, order=0)
         self.weight = GridFunction(P0, name="contact_weight")
@@ -125,7 +126,7 @@ class ContactMultiplier:
         for r in range(self.ROUNDS + 1):
             self.weight.vec.FV().NumPy()[:] = winv
             with TaskManager():
-                a = BilinearForm(self.weight * u * v * dx(intrules=data_rules(dv)["mass"])).Assemble()
+                a = self._a = BilinearForm(self.weight * u * v * dx(intrules=data_rules(dv)["mass"])).Assemble()
                 self._inv = a.mat.Inverse(self.V.FreeDofs(), inverse="sparsecholesky")
             if r == self.ROUNDS:
                 break
@@ -139,13 +140,20 @@ class ContactMultiplier:
                 break
             winv = np.where(neg, winv * self.DAMP, winv)
 
-    def __call__(self, functional: np.ndarray, name: str = "lam_hat") -> CoefficientFunction:
-        """lam^ for a functional on the interior Lagrange basis (e.g. D X3): (lam^, psi_a) = Psi^T values."""
+    def __call__(self, functional: np.ndarray, name: str = "lam_hat",
+                 boundary: Optional[np.ndarray] = None) -> CoefficientFunction:
+        """lam^ for a functional on the interior Lagrange basis (e.g. D X3): (lam^, psi_a) = Psi^T values.
+        ``boundary`` ((nv,), NaN where unused): values of nu at Dirichlet boundary vertices (else 0; their
+        patches need no compatibility), lifted into the fit (:func:`.boundary.boundary_nodal_values`)."""
         m = self.Psi.T @ np.asarray(functional, float)
         rhs = GridFunction(self.V)
         rhs.vec.FV().NumPy()[:] = np.where(self._free, m, 0.0)
         nu = GridFunction(self.V, name=name)
-        nu.vec.data = self._inv * rhs.vec
+        if boundary is not None:
+            nu.vec.FV().NumPy()[:] = np.where(self._free, 0.0, np.nan_to_num(np.asarray(boundary, float)))
+            rhs.vec.data -= self._a.mat * nu.vec
+            rhs.vec.FV().NumPy()[~self._free] = 0.0
+        nu.vec.data += self._inv * rhs.vec
         return self.weight * nu
 
 
