@@ -80,7 +80,10 @@ the patch constants :class:`.multipliers.PatchContactMultiplier`, for RT_3 the c
 fit :class:`.multipliers.ContactMultiplier` -- and :class:`.multipliers.ShapedContactMultiplier`,
 which follows a smooth lam inside the contact set on coarse elements, where an elementwise P1
 function cannot.  On curved P2 elements only the fit is used.  :attr:`Estimate.multiplier` says
-which one was kept; the time is that of both.
+which one was kept; the time is that of both.  Where the contact set reaches the Dirichlet boundary, the
+hat moments of the boundary vertices are not moments of lam (no constraint rows on Dirichlet nodes) and
+every candidate takes the residual multiplier of :mod:`.boundary` there instead
+(``EstimatorOptions.boundary_multiplier``).
 
 Limits: guaranteed up to the quadrature of the estimator integrals (high
 order, but data with jumps and the kinks of max(0, .) are not integrated

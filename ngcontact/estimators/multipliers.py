@@ -249,7 +249,7 @@ class ShapedContactMultiplier:
         order of the triangle rule of the patch sources (:meth:`.patches.PatchSolver.shaped_rule_order`),
         used for (psi_a phi, 1) too, so that the patch data are compatible to round-off.
     boundary_shape : CoefficientFunction, optional
-        the shape on the contact elements near the boundary vertices of contact elements
+        the shape on the contact elements connected to a Dirichlet boundary vertex of a contact element
         (:func:`.boundary.contact_band`), where the dual-basis lam_h, which vanishes at the boundary
         nodes, is polluted (:func:`.boundary.residual_multiplier`); the boundary vertices then take
         s_a = 1 (their patches need no compatibility), so lam^ ~ boundary_shape^+ there.
