@@ -65,3 +65,13 @@ def test_residual_multiplier_and_band(full_contact_p2):
     assert contact_band(dv, contact).all()
     interior = ~boundary_vertices(dv)[dv.element_vertices()].any(axis=1)
     assert not contact_band(dv, interior).any()
+
+
+def test_components_take_the_boundary_multiplier(full_contact_p2):
+    """estimate_components (the Newton-path split) uses the same multiplier: eta_disc of the converged
+    solution stays sharp on T2 (about 5.6 with the moments-only multiplier)."""
+    from ngcontact.estimators import estimate_components
+
+    o = full_contact_p2[-1]
+    comp = estimate_components(o.disc, o.sol.x, o.sol.y, errors=True)
+    assert 1.0 <= comp.i_eff <= 1.5, comp.i_eff
