@@ -129,3 +129,9 @@ estimator-study: $(EST_RUNS)
 results/estimators/runs/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst ., ,$*)) --order $(subst p,,$(word 2,$(subst ., ,$*))) \
 	  --levels $(subst L,,$(word 3,$(subst ., ,$*))) --start cold --estimate --no-vtk --no-plots -q --out $@.part && mv $@.part $@
+
+## boundary-contact: estimator with contact on the Dirichlet boundary: err, eta, I_eff before/after the
+## residual multiplier, P2/P3, T0..T4 (full_contact, obstacle_boundary) -> results/stability/BOUNDARY_CONTACT.md
+.PHONY: boundary-contact
+boundary-contact: $(STAMP)
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.boundary_contact --levels 5 --out results/stability/BOUNDARY_CONTACT.md

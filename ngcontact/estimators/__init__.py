@@ -6,6 +6,7 @@
 * :mod:`.patches` -- the batched vertex-patch solver;
 * :mod:`.moments` -- hat moments of discrete functionals, the vertex device, data quadrature;
 * :mod:`.multipliers` -- the multiplier lam^_h of the equilibration;
+* :mod:`.boundary` -- lam^_h where contact reaches the Dirichlet boundary (residual multiplier);
 * :mod:`.flux` -- patchwise equilibrated fluxes sigma_alpha_h in RT_q;
 * :mod:`.dirichlet` -- correction of non-polynomial Dirichlet data (w_h, eta_bc, eps_w);
 * :mod:`.nonnegative` -- the nonnegative multiplier lam~_h of the contact terms;

@@ -80,7 +80,10 @@ the patch constants :class:`.multipliers.PatchContactMultiplier`, for RT_3 the c
 fit :class:`.multipliers.ContactMultiplier` -- and :class:`.multipliers.ShapedContactMultiplier`,
 which follows a smooth lam inside the contact set on coarse elements, where an elementwise P1
 function cannot.  On curved P2 elements only the fit is used.  :attr:`Estimate.multiplier` says
-which one was kept; the time is that of both.
+which one was kept; the time is that of both.  Where the contact set reaches the Dirichlet boundary, the
+hat moments of the boundary vertices are not moments of lam (no constraint rows on Dirichlet nodes) and
+every candidate takes the residual multiplier of :mod:`.boundary` there instead
+(``EstimatorOptions.boundary_multiplier``).
 
 Limits: guaranteed up to the quadrature of the estimator integrals (high
 order, but data with jumps and the kinks of max(0, .) are not integrated
@@ -287,14 +290,15 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
     if pair:
         # two admissible multipliers, two guaranteed bounds: keep the smaller (module doc, "Multiplier")
         both = [_bound(sv, q, opts, reconstruct(sv, q, multiplier=m, batched=opts.batched,
-                                                regularization=opts.regularization)) for m in pair]
+                                                regularization=opts.regularization,
+                                                boundary=opts.boundary_multiplier)) for m in pair]
         est = min(both, key=lambda e: e.eta)
         est.multiplier = pair[0] if est is both[0] else pair[1]
         est.time_flux = sum(e.time_flux for e in both)
     else:
         if flux is None:
             flux = reconstruct(sv, q, multiplier=opts.multiplier, batched=opts.batched,
-                               regularization=opts.regularization)
+                               regularization=opts.regularization, boundary=opts.boundary_multiplier)
         est = _bound(sv, q, opts, flux)
     est.time_total = time.perf_counter() - t0
     if err_energy is None and errors:

@@ -113,6 +113,7 @@ import numpy as np
 from ngsolve import TRIG, CoefficientFunction, GridFunction, IfPos, TaskManager, dx, grad
 
 from .algebraic import algebraic_terms
+from .boundary import boundary_nodal_values, boundary_vertex_values
 from .dirichlet import dirichlet_lifting
 from .flux import (PatchData, equilibrate_all, flux_bonus, patch_regularization, patch_solver,
                    vertex_device_exact)
@@ -240,8 +241,10 @@ def _algebraic_residual(sv: SolutionView, q: int, r_alg, sigma_alg, res_tol: flo
     return res_alg, _residual_functions(sv.disc, R, q) if inexact else None
 
 
-def _split_multiplier(sv: SolutionView, use_p1: bool):
-    """lam^(y) = lam^(y^+) + lam^(y^-): (positive part, negative part or None, the sum)."""
+def _split_multiplier(sv: SolutionView, use_p1: bool, boundary: bool = True):
+    """lam^(y) = lam^(y^+) + lam^(y^-): (positive part, negative part or None, the sum); ``boundary``: the
+    positive part takes the residual multiplier of :mod:`.boundary` at the boundary vertices of contact
+    elements (free values: boundary patches need no compatibility)."""
     dv, y = sv.disc, sv.y
     D = dv.D
     yp, yn = np.maximum(y, 0.0), np.minimum(y, 0.0)
@@ -251,7 +254,8 @@ def _split_multiplier(sv: SolutionView, use_p1: bool):
         return lam_p, lam_n, _gf_combination(lam_p, 1.0, lam_n, 1.0, "lam_hat")
     # contact multiplier of .multipliers (marker from y+), one linear map for both parts
     cmult = (PatchContactMultiplier if use_p1 else ContactMultiplier)(dv, yp)
-    lam_p = cmult(D * yp, "lam_pos")
+    bnd = (boundary_vertex_values if use_p1 else boundary_nodal_values)(sv, cmult.contact) if boundary else None
+    lam_p = cmult(D * yp, "lam_pos", boundary=bnd)
     lam_n = cmult(D * yn, "lam_neg") if (yn < 0).any() else None
     return lam_p, lam_n, lam_p if lam_n is None else lam_p + lam_n
 
@@ -343,7 +347,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
     q = opts.flux_degree(p)
     res_alg, r_hat = _algebraic_residual(sv, q, r_alg, sigma_alg, opts.res_tol)
     use_p1 = vertex_device_exact(dv, q)
-    lam_p, lam_n, lam_hat = _split_multiplier(sv, use_p1)
+    lam_p, lam_n, lam_hat = _split_multiplier(sv, use_p1, opts.boundary_multiplier)
     t_flux = time.perf_counter()
     sig_d, data = _disc_fluxes(sv, q, lam_p, lam_n, lam_hat, r_hat, use_p1, opts)
     t_flux = time.perf_counter() - t_flux

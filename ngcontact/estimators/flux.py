@@ -57,6 +57,7 @@ from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv
 from ngsolve.comp import PatchwiseSolve
 
 from ..domains import DIRICHLET
+from .boundary import boundary_nodal_values, boundary_vertex_values, residual_multiplier
 from .moments import data_rules, vertex_function_values, vertex_moment_term, vertex_rule
 from .multipliers import ContactMultiplier, PatchContactMultiplier, ShapedContactMultiplier, multiplier_p1
 from .options import MULTIPLIERS, EstimatorOptions
@@ -321,11 +322,11 @@ def reconstruct_fluxes(disc, x, y, options: Optional[EstimatorOptions] = None) -
     opts = options or EstimatorOptions()
     sv = SolutionView.of(disc, x, y)
     return reconstruct(sv, opts.flux_degree(sv.disc.order), multiplier=opts.multiplier, batched=opts.batched,
-                       regularization=opts.regularization)
+                       regularization=opts.regularization, boundary=opts.boundary_multiplier)
 
 
 def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, batched: bool = True,
-                regularization: Optional[float] = None) -> FluxReconstruction:
+                regularization: Optional[float] = None, boundary: bool = True) -> FluxReconstruction:
     """:func:`reconstruct_fluxes` on a solution view, for a given RT degree q.
 
     Parameters
@@ -347,6 +348,9 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
         ``PatchwiseSolve`` (same fluxes to round-off on straight meshes).
     regularization : float, optional
         eps of the ``PatchwiseSolve`` path (default :func:`patch_regularization`).
+    boundary : bool
+        p >= 2, ``"contact"``, ``"fit"`` and ``"shape"``: the residual multiplier of :mod:`.boundary` where contact
+        reaches the Dirichlet boundary.
     """
     t0 = time.perf_counter()
     dv = sv.disc
@@ -374,10 +378,16 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
     moments = dv.D * sv.y
     if p > 1 and multiplier == "shape":
         lam_rule = patch_solver(dv, q).shaped_rule_order(bonus + 1)
-        lam, vertex_values = ShapedContactMultiplier(dv, sv.y, sv.gfs["lam"], rule_order=lam_rule).terms(moments)
+        lam, vertex_values = ShapedContactMultiplier(dv, sv.y, sv.gfs["lam"], rule_order=lam_rule,
+                                                     boundary_shape=residual_multiplier(sv) if boundary else None
+                                                     ).terms(moments)
         lam_term, lam_order = None, p
     elif p == 1 or multiplier in ("p1", "contact"):
-        lam = multiplier_p1(sv) if p == 1 or multiplier == "p1" else PatchContactMultiplier(dv, sv.y)(moments)
+        if p == 1 or multiplier == "p1":
+            lam = multiplier_p1(sv)
+        else:  # the residual multiplier at the boundary vertices of contact elements (.boundary)
+            cmult = PatchContactMultiplier(dv, sv.y)
+            lam = cmult(moments, boundary=boundary_vertex_values(sv, cmult.contact) if boundary else None)
         if batched:  # patch-constant sources, exact for every q and on curved elements
             vertex_values = [(vertex_function_values(dv, lam), None)]
             lam_term = None
@@ -385,7 +395,8 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
             lam_term, lam_dx = vertex_moment_term(dv.mesh, lam, q), dx(intrules={TRIG: vertex_rule()})
     else:  # lam^ (contact-weighted L2 fit) or the dual-basis lam_h: exact product with the FE mass rule
         if multiplier == "fit":
-            lam = ContactMultiplier(dv, sv.y)(moments)
+            fit = ContactMultiplier(dv, sv.y)
+            lam = fit(moments, boundary=boundary_nodal_values(sv, fit.contact) if boundary else None)
         else:
             lam, lam_order = sv.gfs["lam"], p
 

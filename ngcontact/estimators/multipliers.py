@@ -31,6 +31,7 @@ from ngsolve import (H1, L2, TRIG, BilinearForm, CoefficientFunction, Discontinu
                      IntegrationRule, LinearForm, TaskManager, dx)
 
 from ..domains import DIRICHLET
+from .boundary import boundary_vertices, contact_band
 from .moments import data_rules, vertex_moments
 from .view import DiscretizationView, SolutionView
 
@@ -114,6 +115,7 @@ class ContactMultiplier:
         ev = dv.element_vertices()
         k = _contact_vertices(dv, y_marker, tol)[ev].sum(axis=1)
         winv = np.where(k == 3, 1.0, np.where(k > 0, mixed, empty))
+        self.contact = k == 3
         self.n_contact_elements = int((k == 3).sum())
         P0 = L2(mesh, order=0)
         self.weight = GridFunction(P0, name="contact_weight")
@@ -124,7 +126,7 @@ class ContactMultiplier:
         for r in range(self.ROUNDS + 1):
             self.weight.vec.FV().NumPy()[:] = winv
             with TaskManager():
-                a = BilinearForm(self.weight * u * v * dx(intrules=data_rules(dv)["mass"])).Assemble()
+                a = self._a = BilinearForm(self.weight * u * v * dx(intrules=data_rules(dv)["mass"])).Assemble()
                 self._inv = a.mat.Inverse(self.V.FreeDofs(), inverse="sparsecholesky")
             if r == self.ROUNDS:
                 break
@@ -138,13 +140,20 @@ class ContactMultiplier:
                 break
             winv = np.where(neg, winv * self.DAMP, winv)
 
-    def __call__(self, functional: np.ndarray, name: str = "lam_hat") -> CoefficientFunction:
-        """lam^ for a functional on the interior Lagrange basis (e.g. D X3): (lam^, psi_a) = Psi^T values."""
+    def __call__(self, functional: np.ndarray, name: str = "lam_hat",
+                 boundary: Optional[np.ndarray] = None) -> CoefficientFunction:
+        """lam^ for a functional on the interior Lagrange basis (e.g. D X3): (lam^, psi_a) = Psi^T values.
+        ``boundary`` ((nv,), NaN where unused): values of nu at Dirichlet boundary vertices (else 0; their
+        patches need no compatibility), lifted into the fit (:func:`.boundary.boundary_nodal_values`)."""
         m = self.Psi.T @ np.asarray(functional, float)
         rhs = GridFunction(self.V)
         rhs.vec.FV().NumPy()[:] = np.where(self._free, m, 0.0)
         nu = GridFunction(self.V, name=name)
-        nu.vec.data = self._inv * rhs.vec
+        if boundary is not None:
+            nu.vec.FV().NumPy()[:] = np.where(self._free, 0.0, np.nan_to_num(np.asarray(boundary, float)))
+            rhs.vec.data -= self._a.mat * nu.vec
+            rhs.vec.FV().NumPy()[~self._free] = 0.0
+        nu.vec.data += self._inv * rhs.vec
         return self.weight * nu
 
 
@@ -201,11 +210,17 @@ class PatchContactMultiplier:
                               1.0 / vol[ev])
         self._ev = ev
 
-    def __call__(self, functional: np.ndarray, name: str = "lam_hat") -> GridFunction:
-        """lam^ (elementwise P1) for a functional on the interior Lagrange basis (e.g. D X3)."""
+    def __call__(self, functional: np.ndarray, name: str = "lam_hat",
+                 boundary: Optional[np.ndarray] = None) -> GridFunction:
+        """lam^ (elementwise P1) for a functional on the interior Lagrange basis (e.g. D X3); ``boundary``
+        ((ne, 3), NaN where unused): values g_a|_K replacing those of the Dirichlet boundary vertices
+        (:func:`.boundary.boundary_vertex_values`; boundary patches need no compatibility)."""
         m = self.Psi.T @ np.asarray(functional, float)
+        vals = self._coef * m[self._ev]
+        if boundary is not None:
+            vals = np.where(np.isnan(boundary), vals, boundary)
         gf = GridFunction(self.V, name=name)
-        gf.vec.FV().NumPy()[:] = (self._coef * m[self._ev]).ravel()
+        gf.vec.FV().NumPy()[:] = vals.ravel()
         return gf
 
 
@@ -233,16 +248,28 @@ class ShapedContactMultiplier:
     rule_order : int, optional
         order of the triangle rule of the patch sources (:meth:`.patches.PatchSolver.shaped_rule_order`),
         used for (psi_a phi, 1) too, so that the patch data are compatible to round-off.
+    boundary_shape : CoefficientFunction, optional
+        the shape on the contact elements connected to a Dirichlet boundary vertex of a contact element
+        (:func:`.boundary.contact_band`), where the dual-basis lam_h, which vanishes at the boundary
+        nodes, is polluted (:func:`.boundary.residual_multiplier`); the boundary vertices then take
+        s_a = 1 (their patches need no compatibility), so lam^ ~ boundary_shape^+ there.
     """
 
     def __init__(self, dv: DiscretizationView, y_marker, lam_h, *, low: float = 0.5, high: float = 2.0,
-                 tol: float = 1e-8, rule_order: Optional[int] = None):
+                 tol: float = 1e-8, rule_order: Optional[int] = None, boundary_shape=None):
         self.low, self.high = float(low), float(high)
         self.const = PatchContactMultiplier(dv, y_marker, tol=tol)
         mesh, V = dv.mesh, self.const.V
         contact = GridFunction(L2(mesh, order=0), name="contact_elements")
         contact.vec.FV().NumPy()[:] = self.const.contact
-        self.shape = contact * IfPos(lam_h, lam_h, 0.0)
+        self._fixed = np.zeros(mesh.nv, bool)  # vertices with s_a = 1
+        if boundary_shape is None:
+            self.shape = contact * IfPos(lam_h, lam_h, 0.0)
+        else:
+            layer = GridFunction(L2(mesh, order=0), name="boundary_band")
+            layer.vec.FV().NumPy()[:] = contact_band(dv, self.const.contact)
+            self.shape = contact * IfPos(layer, IfPos(boundary_shape, boundary_shape, 0.0), IfPos(lam_h, lam_h, 0.0))
+            self._fixed = boundary_vertices(dv)
         rule = data_rules(dv)["mass"] if rule_order is None else {TRIG: IntegrationRule(TRIG, int(rule_order))}
         with TaskManager():
             A = LinearForm(self.shape * V.TestFunction() * dx(intrules=rule)) \
@@ -255,6 +282,7 @@ class ShapedContactMultiplier:
         interior Lagrange basis (e.g. D X3)."""
         m = self.const.Psi.T @ np.asarray(functional, float)
         s = np.where(self._Aphi > 0, m / np.where(self._Aphi > 0, self._Aphi, 1.0), -1.0)
+        s = np.where(self._fixed & (self._Aphi > 0), 1.0, s)
         shaped = (s >= self.low) & (s <= self.high)
         vs = np.where(shaped[self._ev], s[self._ev], 0.0)                                   # (ne, 3)
         vc = np.where(shaped[self._ev], 0.0, self.const._coef * m[self._ev])               # (ne, 3)

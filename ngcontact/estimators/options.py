@@ -52,6 +52,10 @@ class EstimatorOptions:
     res_tol : float
         :func:`.components.estimate_components`: relative PDE residual below which an iterate without
         ``r_alg`` counts as an exact linear solve.
+    boundary_multiplier : bool
+        p >= 2: the multiplier of the equilibration takes the residual multiplier of :mod:`.boundary`
+        where contact reaches the Dirichlet boundary (False: the moments-only multipliers there, whose
+        eta decays half an order slower than the error when lam > 0 on the boundary).
     """
 
     flux_order: Optional[int] = None
@@ -64,6 +68,7 @@ class EstimatorOptions:
     regularization: Optional[float] = None
     batched: bool = True
     res_tol: float = 1e-12
+    boundary_multiplier: bool = True
 
     def __post_init__(self):
         def bad(name, want):
@@ -89,8 +94,9 @@ class EstimatorOptions:
             v = getattr(self, name)
             if v is not None and not positive(v):
                 bad(name, "a finite number > 0 or None")
-        if not isinstance(self.batched, bool):
-            bad("batched", "True or False")
+        for name in ("batched", "boundary_multiplier"):
+            if not isinstance(getattr(self, name), bool):
+                bad(name, "True or False")
         if not (isinstance(self.res_tol, (int, float)) and not isinstance(self.res_tol, bool)
                 and math.isfinite(self.res_tol) and self.res_tol >= 0):
             bad("res_tol", "a finite number >= 0")
