@@ -111,8 +111,14 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         return NewtonResult(x * s, y * s, converged, reason, k, history, estimates, cert, guard.log)
 
     def certified(reason):
-        """The stop ``reason`` if the certificate that the rule requires holds at (x, y), else None (iterate on)."""
-        return reason if certificate(system, x, y, cert_tol(reason)).valid else None
+        """The stop ``reason`` if the certificate that the rule requires holds at the iterate the rule returns
+        (:meth:`~.stopping.BalancedStop.accepted`), which then replaces (x, y); else None (iterate on)."""
+        nonlocal x, y
+        xa, ya = stop.accepted(x, y) if reason != "converged" else (x, y)
+        if not certificate(system, xa, ya, cert_tol(reason)).valid:
+            return None
+        x, y = xa, ya
+        return reason
 
     if history[-1].res <= options.tol and certified("converged"):
         return result(True, "converged", 0)

@@ -114,6 +114,10 @@ class ResidualStop:
         """Tolerance of the exit certificate (:mod:`.certificate`) when this rule's own test stopped the loop."""
         return options.certificate_tol
 
+    def accepted(self, x, y):
+        """The iterate this rule returns when its own test stopped the loop at (x, y)."""
+        return x, y
+
     def measure(self, rec, system, x, y, r) -> None:
         pass
 
@@ -171,8 +175,13 @@ class BalancedStop:
 
     def certificate_tol(self, options) -> float:
         """The balanced stop leaves a linearization error of relative size gamma_balance: the certificate
-        (penetration, negative multiplier, slackness) is required at that level."""
+        (penetration, slackness; the multiplier is nonnegative, :meth:`accepted`) is required at that level."""
         return max(options.certificate_tol, self.gamma_balance)
+
+    def accepted(self, x, y):
+        """(x, y^+): the balanced iterate's multiplier may still be negative on rows the remaining Newton steps
+        would settle (its size is part of eps_lin <= gamma eps_disc); the rule returns its nonnegative part."""
+        return x, np.maximum(y, 0.0)
 
     def measure(self, rec, system, x, y, r) -> None:
         rec.eps_lin = linearization_defect(system, x, y, r)
@@ -201,6 +210,9 @@ class AdaptiveStop:
     def certificate_tol(self, options) -> float:
         """Not required: the estimators' guaranteed bound certifies the accepted iterate (recorded only)."""
         return float("inf")
+
+    def accepted(self, x, y):
+        return x, y
 
     def measure(self, rec, system, x, y, r) -> None:
         pass
