@@ -135,3 +135,11 @@ results/estimators/runs/%: $(STAMP)
 .PHONY: boundary-contact
 boundary-contact: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.boundary_contact --levels 5 --out results/stability/BOUNDARY_CONTACT.md
+
+## twophase-study: water-hydrogen benchmark (MoMaS 1D, [CG20]): benchmark quantities, Newton-min/FB with
+## direct / GMRES / inexact / adaptive solves, regularization and refinement -> results/twophase/REPORT.md
+.PHONY: twophase-study
+twophase-study: $(STAMP)
+	rm -rf results/twophase.part
+	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.twophase results/twophase.part
+	rm -rf results/twophase && mv results/twophase.part results/twophase

@@ -3,7 +3,8 @@
 A scene file defines
 
 * ``problem`` (required): a :class:`~ngcontact.problems.TwoMembraneProblem` or
-  :class:`~ngcontact.problems.ObstacleProblem`;
+  :class:`~ngcontact.problems.ObstacleProblem`, or the parameters of a two-phase flow
+  (:class:`~ngcontact.twophase.TwoPhaseParams`: ``ngcontact run`` hands it to its own time loop);
 * ``DEFAULTS`` (optional): run options used when the command line does not
   give them, e.g. ``dict(order=2, levels=4)``;
 * ``INITIAL_GUESS`` (optional): a tuple of CoefficientFunctions (one per
@@ -21,6 +22,7 @@ from pathlib import Path
 from typing import Optional
 
 from .problems import ObstacleProblem, TwoMembraneProblem
+from .twophase.params import TwoPhaseParams
 
 __all__ = ["Scene", "SceneError", "load_scene", "cases_dir", "list_scenes"]
 
@@ -101,13 +103,14 @@ def load_scene(spec: str) -> Scene:
             where = f" (line {exc.lineno})"
         raise SceneError(f"scene {path.name}{where}: {type(exc).__name__}: {exc}") from exc
     problem = getattr(module, "problem", None)
-    if not isinstance(problem, (TwoMembraneProblem, ObstacleProblem)):
+    if not isinstance(problem, (TwoMembraneProblem, ObstacleProblem, TwoPhaseParams)):
         raise SceneError(
-            f"scene {path.name} must define `problem` as a TwoMembraneProblem or ObstacleProblem"
+            f"scene {path.name} must define `problem` as a TwoMembraneProblem, ObstacleProblem or TwoPhaseParams"
             f" (got {type(problem).__name__})"
         )
     guess = getattr(module, "INITIAL_GUESS", None)
-    _check_initial_guess(path.name, guess, 2 if isinstance(problem, TwoMembraneProblem) else 1)
+    if not isinstance(problem, TwoPhaseParams):
+        _check_initial_guess(path.name, guess, 2 if isinstance(problem, TwoMembraneProblem) else 1)
     doc = (module.__doc__ or "").strip()
     return Scene(
         name=path.stem,

@@ -22,13 +22,14 @@ ALLOWED = {
     "newton": {"algebra"},
     "estimators": {"algebra", "discretizations", "problems", "domains"},
     "options": _BASE | {"discretizations", "newton", "estimators"},
-    "scenes": {"problems", "domains"},
+    "scenes": {"problems", "domains", "twophase"},
     "drivers": _BASE | {"problems", "discretizations", "newton", "estimators", "options"},
     "results": {"rates", ""},
     "plotting": {"results", "rates", "domains"},
     "studies": _BASE | {"problems", "discretizations", "newton", "estimators", "options", "scenes", "drivers",
-                        "results", "plotting", "cli"},
-    "cli": _BASE | {"problems", "options", "scenes", "drivers", "results", "plotting"},
+                        "results", "plotting", "cli", "twophase"},
+    "cli": _BASE | {"problems", "options", "scenes", "drivers", "results", "plotting", "twophase"},
+    "twophase": {"algebra", "newton"},
     "__main__": {"cli"},
     "": {"domains", "problems"},  # the package itself: the names of `from ngcontact import ...`
 }

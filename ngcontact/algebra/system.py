@@ -38,6 +38,7 @@ from typing import Optional
 import numpy as np
 import scipy.sparse as sp
 
+from .certificate import certificate
 from .linalg import SPDSolver
 
 __all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS",
@@ -174,6 +175,34 @@ class ComplementaritySystem:
         out = copy.copy(self)
         out.F, out.b = self.F / s, self.b / s
         return out
+
+    def pair(self, x: np.ndarray, y: np.ndarray):
+        """The complementary pair (w g(x), y) handed to the C-function (w = :attr:`constraint_weight`; the
+        Newton loop's view, shared with :mod:`.nonlinear`)."""
+        return self.constraint_weight * self.gap(x), y
+
+    def chain(self, da: np.ndarray, db: np.ndarray):
+        """(Ca, Cb): the C-function's derivatives with respect to the pair turned into derivatives with respect
+        to (g, y), as :meth:`newton_step` takes them: (w da, db)."""
+        return self.constraint_weight * da, db
+
+    def scale(self) -> float:
+        """Divisor of ||Phi|| in the Newton loop's relative residual: ||F||."""
+        return max(float(np.linalg.norm(self.F)), np.finfo(float).tiny)
+
+    def data_scale(self) -> float:
+        """The power of 2 nearest to the size of the data: ||F||_inf, else ||b||_inf times the constraint
+        weight (a load-free obstacle problem), else 1 (the Newton loop solves the system :meth:`rescaled` by it)."""
+        for v in (self.F, self.constraint_weight * self.b):
+            if len(v):
+                m = float(np.max(np.abs(v)))
+                if m > 0 and math.isfinite(m):
+                    return power_of_two(m)
+        return 1.0
+
+    def certificate(self, x: np.ndarray, y: np.ndarray, tol: float):
+        """The exit certificate of (x, y) (:mod:`.certificate`)."""
+        return certificate(self, x, y, tol)
 
     def gap(self, x: np.ndarray) -> np.ndarray:
         """g(x) = B x - b."""

@@ -116,6 +116,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="no PNG figures")
     r.add_argument("--test", action="store_true",
                    help="short run with the scene's TEST_OPTIONS (options given explicitly override them)")
+    r.add_argument("--cells", type=int, help="two-phase scenes: number of cells (default 1000)")
+    r.add_argument("--dt-years", type=float, dest="dt_years", help="two-phase scenes: time step in years (default 5000)")
+    r.add_argument("--t-final-years", type=float, dest="t_final_years",
+                   help="two-phase scenes: final time in years (default 1e6)")
     r.add_argument("-v", "--verbose", action="store_true", help="print every Newton iteration")
     r.add_argument("-q", "--quiet", action="store_true",
                    help="no per-level progress: only the final table, the stop reason and the output paths")

@@ -139,8 +139,13 @@ def cmd_run(args, argv) -> int:
     from ..plotting import write_run_plots
     from ..results import RunWriter
     from ..scenes import load_scene
+    from ..twophase.params import TwoPhaseParams
+    from .twophase import check_membrane_flags, cmd_run_twophase
 
     scene = load_scene(args.scene)
+    if isinstance(scene.problem, TwoPhaseParams):  # water-hydrogen flow: its own time loop and outputs
+        return cmd_run_twophase(scene, args, argv)
+    check_membrane_flags(args)
     options, budget = _run_options(scene, args)
     out = args.out if args.out is not None else (f"results/runs/{scene.name}-{options.disc}-p{options.order}"
                                                  + ("-adaptive" if options.adaptive else ""))

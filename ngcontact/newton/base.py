@@ -34,7 +34,7 @@ class NewtonOptions:
     armijo: float = 1e-4
     min_step: float = 2.0 ** -30
     reuse_factorization: bool = True  # direct solves: PCG with an earlier step's factorization (algebra.reuse)
-    cert_tol: Optional[float] = None  # exit certificate (newton.certificate); None: certificate_tol's default
+    cert_tol: Optional[float] = None  # exit certificate (algebra.certificate); None: certificate_tol's default
 
     @property
     def certificate_tol(self) -> float:
@@ -99,7 +99,7 @@ class NewtonResult:
     iterations: int
     history: List[IterationRecord] = field(default_factory=list)
     estimates: list = field(default_factory=list)
-    certificate: Optional[object] = None  # newton.certificate.Certificate of (x, y)
+    certificate: Optional[object] = None  # algebra.certificate.Certificate of (x, y)
     remedies: List[str] = field(default_factory=list)  # safeguards taken (newton.safeguards), one line each
 
     @property

@@ -33,12 +33,11 @@ import numpy as np
 from ..algebra.cfunctions import get_cfunction
 from ..algebra.system import power_of_two
 from .base import IterationRecord, NewtonOptions, NewtonResult
-from .certificate import certificate
 from .linear import DirectSolve
 from .safeguards import Safeguards
 from .stopping import ResidualStop
 
-__all__ = ["semismooth_newton", "armijo_backtracking", "round_off_hint", "data_scale", "safe_norm",
+__all__ = ["semismooth_newton", "armijo_backtracking", "round_off_hint", "safe_norm",
            "relative_residual", "exit_certificate"]
 
 
@@ -50,7 +49,10 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
 
     Parameters
     ----------
-    system : ComplementaritySystem
+    system : ComplementaritySystem or NonlinearComplementaritySystem
+        the loop calls ``residual(x, y)``, ``pair(x, y) -> (a, b)`` (the complementary pair; (g(x), y)
+        for the linear systems) and ``scale()`` (divisor of ||Phi||); a nonlinear system
+        (:mod:`ngcontact.algebra.nonlinear`) is solved with the strategies of :mod:`.nonlinear`.
     x0, y0 : ndarray
         initial guess X^0.
     options : NewtonOptions
@@ -74,25 +76,24 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     stop = stop if stop is not None else ResidualStop()
     cf = get_cfunction(options.cfun)
     line_search = options.line_search if options.line_search is not None else cf.name == "fb"
-    # nondimensionalize: solve for (x, y) / s with F / s, b / s (s a power of 2: the iterates are those of the
+    # nondimensionalize: solve for (x, y) / s with the data / s (s a power of 2: the iterates are those of the
     # unscaled data, bit for bit, and no square under- or overflows for data from 1e-300 to 1e+300)
-    s = data_scale(system)
+    s = system.data_scale()
     original, system = system, system.rescaled(s)
     linear, stop = _rescaled_strategy(linear, s), stop.rescaled(s)
-    w = system.constraint_weight
-    scale = max(np.linalg.norm(system.F), np.finfo(float).tiny)
+    scale = system.scale()
     x, y = np.array(x0, dtype=float) / s, np.array(y0, dtype=float) / s
     Record = linear.record_type
     emit = (lambda k, x, y: on_iterate(k, x * s, y * s)) if on_iterate else None
 
     def merit(x, y):
         r = system.residual(x, y)
-        c = cf.value(w * system.gap(x), y)
+        c = cf.value(*system.pair(x, y))
         return r, c, 0.5 * (r @ r + c @ c)
 
     t_start = time.perf_counter()
     r, c, psi = merit(x, y)
-    active = w * system.gap(x) <= y
+    active = np.less_equal(*system.pair(x, y))
     history = [Record(0, float(np.sqrt(2 * psi) / scale), float(np.linalg.norm(r) / scale),
                       float(np.linalg.norm(c) / scale), int(active.sum()), 0, 0.0, 0.0,
                       time.perf_counter() - t_start)]
@@ -107,7 +108,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         return options.certificate_tol if reason == "converged" else stop.certificate_tol(options)
 
     def result(converged, reason, k):
-        cert = certificate(system, x, y, cert_tol(reason))
+        cert = system.certificate(x, y, cert_tol(reason))
         return NewtonResult(x * s, y * s, converged, reason, k, history, estimates, cert, guard.log)
 
     def certified(reason):
@@ -115,7 +116,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         (:meth:`~.stopping.BalancedStop.accepted`), which then replaces (x, y); else None (iterate on)."""
         nonlocal x, y
         xa, ya = stop.accepted(x, y) if reason != "converged" else (x, y)
-        if not certificate(system, xa, ya, cert_tol(reason)).valid:
+        if not system.certificate(xa, ya, cert_tol(reason)).valid:
             return None
         x, y = xa, ya
         return reason
@@ -127,8 +128,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     reason = f"maximum number of iterations ({options.maxit}) reached"
     for k in range(1, options.maxit + 1):
         t0 = time.perf_counter()
-        da, db = cf.jacobian(w * system.gap(x), y)
-        Ca, Cb = w * da, db  # derivatives of C(w g, y) with respect to g and y
+        Ca, Cb = system.chain(*cf.jacobian(*system.pair(x, y)))  # derivatives in the variables of newton_step
         trial = session.step(k, x, y, c, Ca, Cb, history[-1].res)
         step, failed = 1.0, False
         if line_search:
@@ -141,7 +141,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
             x, y = trial.x, trial.y
             r, c, psi = merit(x, y)
         extra = session.after_step(k, x, y, step)
-        new_active = w * system.gap(x) <= y
+        new_active = np.less_equal(*system.pair(x, y))
         rec = Record(k=k, res=float(np.sqrt(2 * psi) / scale), res_lin=float(np.linalg.norm(r) / scale),
                      res_c=float(np.linalg.norm(c) / scale), n_active=int(new_active.sum()),
                      n_changed=int((new_active != active).sum()), step=step, time_linear=trial.time_linear,
@@ -188,21 +188,10 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         if done is not None and certified(done):
             return result(True, done, k)
     else:
-        failure = certificate(system, x, y, options.certificate_tol).failure()
+        failure = system.certificate(x, y, options.certificate_tol).failure()
         if failure and history[-1].res <= options.tol:
             reason += f"; the residual test holds but the {failure}"
     return result(False, reason, len(history) - 1)
-
-
-def data_scale(system) -> float:
-    """The power of 2 nearest to the size of the data: ||F||_inf, else ||b||_inf times the constraint
-    weight (a load-free obstacle problem), else 1."""
-    for v in (system.F, system.constraint_weight * system.b):
-        if len(v):
-            m = float(np.max(np.abs(v)))
-            if m > 0 and np.isfinite(m):
-                return power_of_two(m)
-    return 1.0
 
 
 def safe_norm(v: np.ndarray) -> float:
@@ -215,17 +204,17 @@ def safe_norm(v: np.ndarray) -> float:
 
 def relative_residual(system, cfun, x: np.ndarray, y: np.ndarray) -> float:
     """||Phi(X)|| / ||F|| of the loop's stopping test at (x, y), Phi = [K x - B^T D y - F; C(w g, y)]."""
-    s = data_scale(system)
+    s = system.data_scale()
     sysS, xs, ys = system.rescaled(s), x / s, y / s
     r = sysS.residual(xs, ys)
-    c = get_cfunction(cfun).value(sysS.constraint_weight * sysS.gap(xs), ys)
-    return float(np.sqrt(r @ r + c @ c) / max(np.linalg.norm(sysS.F), np.finfo(float).tiny))
+    c = get_cfunction(cfun).value(*sysS.pair(xs, ys))
+    return float(np.sqrt(r @ r + c @ c) / sysS.scale())
 
 
 def exit_certificate(system, x: np.ndarray, y: np.ndarray, tol: float):
-    """:func:`~.certificate.certificate` of (x, y), evaluated on the nondimensionalized system."""
-    s = data_scale(system)
-    return certificate(system.rescaled(s), x / s, y / s, tol)
+    """The exit certificate of (x, y), evaluated on the nondimensionalized system."""
+    s = system.data_scale()
+    return system.rescaled(s).certificate(x / s, y / s, tol)
 
 
 def _rescaled_strategy(linear, s: float):

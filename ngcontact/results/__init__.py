@@ -46,7 +46,7 @@ newton_converged    1 if the Newton mode's stopping criterion was met, else 0: |
                     (direct, gmres, inexact) or eta_lin <= gamma_lin eta_disc (adaptive)
 res_final           final ||Phi||/||F|| (adaptive: it contains the algebraic residual of the accepted
                     GMRES iterate and can be O(1) when the estimators say the error is discretization-dominated)
-certified           1 if the exit certificate holds at cert_tol (ngcontact.newton.certificate), else 0
+certified           1 if the exit certificate holds at cert_tol (ngcontact.algebra.certificate), else 0
 cert_penetration, cert_negativity, cert_slackness
                     the certificate: max(-g)^+ / max(|x|, |b|), max(-y)^+ / max(|y|, cert_tol |F| / max D),
                     max_i min(g_i^+ / max(|x|, |b|), y_i^+ / ...) (sup norms; invariant under scaling)

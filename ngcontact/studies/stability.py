@@ -1,6 +1,6 @@
 """The stability suite: a matrix of stiff and extreme cases, each checked against one rule.
 
-**The rule**: every run either converges with a valid exit certificate (:mod:`ngcontact.newton.certificate`)
+**The rule**: every run either converges with a valid exit certificate (:mod:`ngcontact.algebra.certificate`)
 on every level, or stops with a named reason (a Newton failure, or data refused with a message naming the
 field) -- never a finished run with a wrong answer, never NaN.  "Wrong answer" is checked where it can be:
 
@@ -257,7 +257,7 @@ def report(outcomes: list, verdicts: list, seconds: float) -> str:
              f"**{n_pass} of {len(outcomes)} cases pass the rule**: every run converges with a valid exit "
              "certificate on every level, or stops with a named reason; no finished run with a wrong answer, no NaN.", "",
              "Certificate: the largest of the relative penetration, negative multiplier and slackness over the "
-             "levels (ngcontact/newton/certificate.py).  Check: scaled copies must reproduce their baseline "
+             "levels (ngcontact/algebra/certificate.py).  Check: scaled copies must reproduce their baseline "
              f"(errors within {SCALE_RTOL:g} relative after unscaling), other cases must converge (last energy "
              f"error <= {DECAY} x the previous).  Newton its: per level.  Safeguards: Newton-loop remedies taken "
              "(ngcontact/newton/safeguards.py).  I_eff = eta / err_energy per level, FEM P1 and P2 with the residual "

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["Certificate", "certificate", "ROUND_OFF"]
+__all__ = ["Certificate", "certificate", "pair_certificate", "ROUND_OFF"]
 
 #: multipliers below ROUND_OFF ||F||_inf / max D are round-off (a solve without contact leaves y ~ 1e-19 there)
 ROUND_OFF = 1e-8
@@ -55,18 +55,22 @@ def _inf(v) -> float:
     return float(np.max(np.abs(v))) if len(v) else 0.0
 
 
-def certificate(system, x: np.ndarray, y: np.ndarray, tol: float) -> Certificate:
-    """The certificate of (x, y) for ``system`` (module doc)."""
+def pair_certificate(a: np.ndarray, b: np.ndarray, A: float, B: float, tol: float) -> Certificate:
+    """The certificate of a >= 0, b >= 0, a . b = 0 with a measured relative to A and b relative to B."""
     tiny = np.finfo(float).tiny
-    g = system.gap(x)
-    U = max(_inf(x), _inf(system.b), tiny)
-    Dmax = float(np.max(system.D)) if len(system.D) else 1.0
-    Y = max(_inf(y), ROUND_OFF * _inf(system.F) / Dmax, tiny)
-    if not len(g):
+    if not len(a):
         return Certificate(0.0, 0.0, 0.0, tol)
-    pen = max(0.0, float(np.max(-g))) / U
-    neg = max(0.0, float(np.max(-y))) / Y
-    slack = float(np.max(np.minimum(np.maximum(g, 0.0) / U, np.maximum(y, 0.0) / Y)))
-    vals = [pen, neg, slack]
-    vals = [v if np.isfinite(v) else float("inf") for v in vals]
+    A, B = max(A, tiny), max(B, tiny)
+    pen = max(0.0, float(np.max(-a))) / A
+    neg = max(0.0, float(np.max(-b))) / B
+    slack = float(np.max(np.minimum(np.maximum(a, 0.0) / A, np.maximum(b, 0.0) / B)))
+    vals = [v if np.isfinite(v) else float("inf") for v in (pen, neg, slack)]
     return Certificate(*vals, tol)
+
+
+def certificate(system, x: np.ndarray, y: np.ndarray, tol: float) -> Certificate:
+    """The certificate of (x, y) for the linear complementarity ``system`` (module doc)."""
+    Dmax = float(np.max(system.D)) if len(system.D) else 1.0
+    U = max(_inf(x), _inf(system.b))
+    Y = max(_inf(y), ROUND_OFF * _inf(system.F) / Dmax)
+    return pair_certificate(system.gap(x), y, U, Y, tol)

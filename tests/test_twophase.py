@@ -1,0 +1,154 @@
+"""Two-phase water-hydrogen benchmark (ngcontact.twophase): Jacobian against finite differences,
+a short coarse run through gas appearance at x = 0 with mass balance, parameter validation."""
+import numpy as np
+import pytest
+
+from ngcontact.twophase import YEAR, TwoPhaseParams, run_h2
+from ngcontact.twophase.fv import TwoPhaseFV, initial_state
+from ngcontact.twophase.laws import VanGenuchten
+from ngcontact.twophase.mesh1d import interval_mesh
+
+#: finite-difference steps per unknown (S, P [Pa], chi)
+FD_STEP = np.array([1e-7, 1.0, 1e-10])
+#: typical variation of each unknown over a step: the Jacobian's columns are compared in these units
+VARIATION = np.array([1e-2, 1e5, 1e-4])
+
+
+def _step_and_state(gas: bool):
+    prm = TwoPhaseParams()
+    mesh = interval_mesh(prm.length, 8)
+    disc = TwoPhaseFV(prm, mesh)
+    x0 = initial_state(prm, mesh)
+    system = disc.step_system(x0, 0.0, 5000 * YEAR)
+    rng = np.random.default_rng(1)
+    x = x0.copy()
+    x[1::3] += 1e5 * rng.random(8)
+    x[2::3] = 1e-4 * rng.random(8)
+    if gas:  # S in the exact-law range and in the regularized chord [1 - eps, 1]
+        x[0::3] = 1.0 - np.array([2e-2, 1e-2, 5e-3, 1e-3, 4e-5, 2e-5, 1e-2, 3e-3])
+    return system, x
+
+
+@pytest.mark.parametrize("gas", [True, False], ids=["gas-zone", "liquid-only"])
+@pytest.mark.parametrize("C", [(1.0, 0.0), (0.0, 1.0), (-0.4, -0.7)], ids=["a", "b", "fb"])
+def test_jacobian_matches_finite_differences(gas, C):
+    """Analytic Newton matrix against differences of Phi = [R; Ca a + Cb b]: central in the gas zone,
+    backward (from S = 1, the side the laws are differentiated on) in the liquid-only zone."""
+    system, x = _step_and_state(gas)
+    n = len(x)
+    Ca, Cb = np.full(n // 3, C[0]), np.full(n // 3, C[1])
+    J = system.jacobian(x, None, Ca, Cb).toarray()
+
+    def phi(z):
+        a, b = system.pair(z)
+        return system.stack(system.residual(z), Ca * a + Cb * b)
+
+    Jfd = np.empty_like(J)
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = FD_STEP[j % 3]
+        Jfd[:, j] = (phi(x + e) - phi(x - e)) / (2 * e[j]) if gas else (phi(x) - phi(x - e)) / e[j]
+    col = np.tile(VARIATION, n // 3)
+    rel = np.abs((J - Jfd) * col).max(axis=1) / np.abs(Jfd * col).max(axis=1)
+    assert rel.max() < (1e-6 if gas else 1e-4)
+
+
+def test_laws_at_full_saturation_and_regularization():
+    vg = VanGenuchten(TwoPhaseParams())
+    s = np.array([1.0])
+    assert abs(vg.pc(s)[0][0]) < 1e-6 and vg.krl(s)[0][0] == pytest.approx(1.0) and vg.krg(s)[0][0] == 0.0
+    assert np.isfinite(vg.pc(s)[1][0]) and np.isfinite(vg.krl(s)[1][0])
+    # the inverse of P_c on both sides of the chord
+    sat = np.array([0.9, 0.99, 1.0 - 0.6 * 5e-5])
+    assert np.allclose(vg.saturation(vg.pc(sat)[0]), sat, atol=1e-12)
+
+
+def test_short_run_gas_appears_at_x0_with_mass_balance():
+    """100 cells, dt = 5000 years, to 3e4 years: no gas at 1e4 years, gas at x = 0 from t = 1.5e4 years
+    (appearance near 1.26e4 years), mass balance of both components and the bounds on every step."""
+    run = run_h2(cells=100, dt_years=5000.0, t_final_years=3e4)
+    s0 = [r.S_0 for r in run.rows]
+    assert [r.t_years for r in run.rows] == pytest.approx([5e3, 1e4, 1.5e4, 2e4, 2.5e4, 3e4])
+    assert s0[0] == 1.0 and s0[1] == 1.0 and s0[2] < 1.0
+    assert run.rows[-1].gas_end_m > 10.0
+    for r in run.rows:
+        assert r.water_defect_rel <= 1e-10 and r.h2_defect_rel <= 1e-10
+        assert r.min_S_minus_Slr >= 0 and r.max_S_minus_1 <= 1e-14 and r.min_chi >= 0
+    assert not run.log
+
+
+@pytest.mark.parametrize("field, value", [("porosity", 0.0), ("n_vg", 1.0), ("mu_g", -1.0), ("eps_reg", 0.7),
+                                          ("s_lr", 1.2), ("q_inject", -1.0), ("henry", float("nan"))])
+def test_parameter_errors_name_the_field(field, value):
+    with pytest.raises(ValueError, match=f"parameters? [a-z_, ]*{field}"):
+        TwoPhaseParams(**{field: value})
+
+
+def test_run_option_errors():
+    with pytest.raises(ValueError, match="option dt_years must be > 0, got -1"):
+        run_h2(dt_years=-1)
+    with pytest.raises(ValueError, match="option cells"):
+        run_h2(cells=1)
+    with pytest.raises(ValueError, match="option newton"):
+        run_h2(newton="lu")
+
+
+def test_cli_run_writes_the_outputs(tmp_path, capsys):
+    from ngcontact.cli import main
+
+    out = tmp_path / "h2"
+    assert main(["run", "h2_storage", "--test", "--t-final-years", "2e4", "--out", str(out), "-q", "--no-plots"]) == 0
+    assert {"steps.csv", "profiles.csv", "summary.json"} <= {p.name for p in out.iterdir()}
+    import json
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == 4 and summary["benchmark_x0"]["gas_appears_years"] == 15000.0
+    assert main(["run", "h2_storage", "--cells", "1", "--out", str(tmp_path / "bad")]) == 2
+    assert "option --cells must be an integer >= 2, got 1" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_gmres_modes_match_the_direct_solution(cfun):
+    """Short coarse run: exact GMRES, inexact and adaptive ([CG20] stopping) against the LU run, with S <= 1
+    at every accepted step and fewer GMRES iterations in the adaptive mode than in the exact one."""
+    kw = dict(cells=100, dt_years=5000.0, t_final_years=3e4, cfun=cfun)
+    ref = run_h2(newton="direct", **kw)
+    runs = {m: run_h2(newton=m, **kw) for m in ("gmres", "inexact", "adaptive")}
+    p_ref = np.array([r.Pg_0_Pa for r in ref.rows])
+    for mode, run in runs.items():
+        assert run.completed and not run.log, mode
+        p = np.array([r.Pg_0_Pa for r in run.rows])
+        assert np.abs(p - p_ref).max() / p_ref.max() < (1e-9 if mode != "adaptive" else 1e-4), mode
+        # Newton-min keeps S = 1 exactly on its liquid rows; with FB, |C(a, b)| <= tol bounds 1 - S >= -tol only
+        assert max(r.max_S_minus_1 for r in run.rows) <= (1e-14 if cfun == "min" else 1e-8), mode
+        assert min(r.min_chi for r in run.rows) >= 0, mode
+    assert runs["adaptive"].gmres_total < runs["gmres"].gmres_total
+    assert all(np.isfinite([r.eta_lin_h, r.eta_alg_h, r.eta_sp_h, r.eta_tm_h]).all() for r in runs["adaptive"].rows)
+
+
+def test_estimator_components_at_a_converged_step():
+    """At an (exactly) converged step the linearization and algebraic components vanish next to the
+    spatial and temporal ones; a perturbed iterate has a linearization component, a look-ahead an
+    algebraic one."""
+    from ngcontact.twophase.estimators import TwoPhaseEstimator
+
+    run = run_h2(cells=100, dt_years=5000.0, t_final_years=2.5e4, tol=1e-9)
+    disc = run.disc
+    x_prev = run.profiles.get(2e4)
+    run2 = run_h2(cells=100, dt_years=5000.0, t_final_years=2e4, tol=1e-9)
+    system = disc.step_system(run2.x, 2e4 * YEAR, 2.5e4 * YEAR)
+    est = TwoPhaseEstimator(disc, system)
+    x = run.x
+    zero = np.zeros_like(x)
+    c = est.components(x, zero, zero)
+    floor = np.maximum(c.eta_sp, c.eta_tm)
+    assert np.all(c.eta_lin < 1e-4 * floor) and np.all(c.eta_alg < 1e-4 * floor)
+    assert est.stop_newton(c) and est.stop_linear(c)
+    dx = np.zeros_like(x)
+    dx[1::3] = 1e3  # a pressure perturbation: the linearization is exact in P only through k_r upwinding
+    dx[0:30:3] = -1e-3
+    c2 = est.components(x - dx, zero, zero)
+    assert np.any(c2.eta_lin > 1e-3 * floor)
+    c3 = est.components(x, zero, dx)
+    assert np.any(c3.eta_alg > 1e-3 * floor) and not est.stop_linear(c3)
+    assert x_prev is None or x_prev.shape == x.shape
