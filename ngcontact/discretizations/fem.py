@@ -29,6 +29,7 @@ from ..domains import DIRICHLET
 from ..problems.base import check_data_on_points
 from .base import Discretization, assemble_load, evaluate_at_points, scipy_csr
 from .lagrange import LagrangeNodes, meshpoints
+from .nodesets import constraint_node_set
 
 __all__ = ["FEMDiscretization"]
 
@@ -60,22 +61,29 @@ class FEMDiscretization(Discretization):
         sparse SPD solver of the Newton steps ('sparsecholesky' or 'scipy').
     quad_bonus : int
         extra quadrature order for data (loads, errors).
+    constraints : str
+        'nodal' (default): constraints at the Lagrange nodes of the positive node set
+        (:mod:`~ngcontact.discretizations.nodesets`: no cardinal function has a negative integral);
+        'equispaced': at the equispaced lattice of [CAMWA21] (the same nodes for p = 1, 2, 3).
     """
 
     name = "fem"
     orders = (1, 2, 3, 4)
     estimable = True
 
-    def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6):
+    def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6,
+                 constraints: str = "nodal"):
         if order not in self.orders:
             raise ValueError(f"order must be 1, 2, 3 or 4 for fem, got {order!r}")
+        node_set = constraint_node_set(constraints)
+        self.constraints = constraints
         t0 = time.perf_counter()
         self.problem, self.mesh, self.order, self.quad_bonus = problem, mesh, order, quad_bonus
         self._mass = self._mass_lu = None  # nodal mass matrix and its LU factors, built on first use
         if getattr(problem.domain, "curved", False) and order > 1:
             mesh.Curve(order)
         self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
-        self.nodes = nodes = LagrangeNodes.build(fes)
+        self.nodes = nodes = LagrangeNodes.build(fes, node_set)
         free = np.array(list(fes.FreeDofs()), dtype=bool)
         self.interior = np.flatnonzero(free)
         self.boundary = np.flatnonzero(~free)

@@ -31,22 +31,9 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import VOL, ElementId, IntegrationRule, x, y
 
+from .nodesets import lattice, reference_nodes
+
 __all__ = ["LagrangeNodes", "lattice", "meshpoints"]
-
-
-def lattice(p: int) -> np.ndarray:
-    """Integer barycentric coordinates (b0, b1, b2), b0+b1+b2 = p, of the P_p lattice.
-
-    The reference point of NGSolve's triangle is (b0/p, b1/p)
-    (vertices (1,0), (0,1), (0,0)).
-
-    >>> lattice(1).tolist()
-    [[0, 0, 1], [0, 1, 0], [1, 0, 0]]
-    >>> len(lattice(4))
-    15
-    """
-    pts = [(i, j, p - i - j) for i in range(p + 1) for j in range(p + 1 - i)]
-    return np.array(pts, dtype=int)
 
 
 # local edges of an NGSolve triangle, as pairs of local vertices
@@ -76,11 +63,15 @@ class LagrangeNodes:
     _points: np.ndarray = None  # MeshPoints of the nodes (numbered by dof)
 
     @classmethod
-    def build(cls, fes) -> "LagrangeNodes":
-        """Build nodes, evaluation matrix and its inverse for ``fes = H1(mesh, order=p)``."""
+    def build(cls, fes, node_set: str = "positive") -> "LagrangeNodes":
+        """Build nodes, evaluation matrix and its inverse for ``fes = H1(mesh, order=p)``.
+
+        ``node_set``: the reference nodes (:func:`~ngcontact.discretizations.nodesets.reference_nodes`,
+        'positive' or 'equispaced'); their labels are the lattice points of ``lattice(p)``."""
         mesh = fes.mesh
         p = fes.globalorder
         lat = lattice(p)
+        ref = reference_nodes(p, node_set)  # barycentric coordinates of the node of lattice point j
         npts = len(lat)
         ne = mesh.ne
         ndof = fes.ndof
@@ -134,7 +125,7 @@ class LagrangeNodes:
             for c in np.unique(cls_id):
                 rep = int(np.flatnonzero(cls_id == c)[0])
                 fe = fes.GetFE(ElementId(VOL, rep))
-                block = np.array([np.asarray(fe.CalcShape(b[0] / p, b[1] / p)) for b in lat])
+                block = np.array([np.asarray(fe.CalcShape(b[0], b[1])) for b in ref])
                 vloc[cls_id == c] = block
             rows = np.repeat(np.arange(ndof), ndof_loc)
             cols = dofs[e_of].ravel()
@@ -142,9 +133,9 @@ class LagrangeNodes:
             keep = np.abs(vals) > 1e-13
             V = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(ndof, ndof))
 
-        # --- one MeshPoint per node (its element e_of, reference point lat[j_of] / p): coordinates and
+        # --- one MeshPoint per node (its element e_of, reference point ref[j_of]): coordinates and
         # data are evaluated at ndof points, not at the ne * npts points of MapToAllElements
-        points = meshpoints(mesh, e_of, lat[j_of, 0] / p, lat[j_of, 1] / p)
+        points = meshpoints(mesh, e_of, ref[j_of, 0], ref[j_of, 1])
         coords = np.stack([np.asarray(x(points)).ravel(), np.asarray(y(points)).ravel()], axis=1)
 
         T = V if p == 1 else _block_triangular_inverse(V, dofs, level, p)
