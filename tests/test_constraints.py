@@ -70,3 +70,22 @@ def test_p4_positive_nodes_beat_the_equispaced_lattice():
     rate = {c: np.log2(e[1] / e[2]) for c, e in err.items()}
     assert rate["nodal"] > 3.9 and rate["equispaced"] < 3.6
     assert err["nodal"][2] < 0.75 * err["equispaced"][2]
+
+
+def test_report_reads_runs_and_computes_the_node_set_table(tmp_path):
+    from ngcontact.studies.constraints import main as report
+
+    dirs = []
+    for c in ("nodal", "equispaced"):
+        d = tmp_path / f"test1-fem-p4-{c}"
+        assert main(["run", "test1", "--order", "4", "--levels", "2", "--constraints", c, "--out", str(d), "-q",
+                     "--no-vtk", "--no-plots"]) == 0
+        dirs.append(str(d))
+    out = tmp_path / "CONSTRAINTS.md"
+    assert report([str(out), *dirs]) == 0
+    text = out.read_text()
+    assert "| 4 | equispaced | 0.0000 | -0.0222, 0.0889 | 0.1778 | -0.0222 **<0** | 3.47 |" in text
+    assert "| 4 | positive | 0.0122 | 0.0181, 0.0533 | 0.2315 | 0.0122 | 2.94 |" in text
+    assert "| FEM | 4 | equispaced lattice | 1.468e-04 | 1.038e-05 |" in text
+    assert "| FEM | 4 | positive nodes (nodal) | 1.540e-04 | 1.058e-05 |" in text
+    assert "| test 1 FEM P4 to T4 |  | not run | - |" in text
