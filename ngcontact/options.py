@@ -23,7 +23,7 @@ from typing import Optional
 
 from .algebra.linalg import SOLVERS
 from .discretizations import DISCRETIZATIONS
-from .discretizations.nodesets import CONSTRAINTS
+from .discretizations.nodesets import CONSTRAINTS, NODAL_CONSTRAINTS
 from .estimators import EstimatorOptions
 from .marking import check_marking
 from .newton import DirectSolve, KrylovSolve, NewtonOptions, StopOptions
@@ -112,6 +112,8 @@ class RunOptions:
             bad("start", "'nested' or 'cold'")
         if self.constraints not in CONSTRAINTS:
             bad("constraints", f"one of {sorted(CONSTRAINTS)}")
+        if self.disc != "fem" and self.constraints not in NODAL_CONSTRAINTS:
+            bad("constraints", f"one of {sorted(NODAL_CONSTRAINTS)} for disc {self.disc!r} (bernstein: fem only)")
         if self.solver not in SOLVERS:
             bad("solver", f"one of {SOLVERS}")
         for name in ("condense", "estimate", "decouple", "adaptive"):

@@ -15,17 +15,22 @@ from ngcontact.scenes import load_scene
 def test_option_is_validated_and_named():
     assert RunOptions().constraints == "nodal"
     assert RunOptions(constraints="equispaced").constraints == "equispaced"
-    with pytest.raises(ValueError, match=r"option constraints must be one of \['equispaced', 'nodal'\], got 'gauss'"):
+    with pytest.raises(ValueError, match=r"option constraints must be one of \['bernstein', 'equispaced', 'nodal'\], "
+                                         r"got 'gauss'"):
         RunOptions(constraints="gauss")
+    with pytest.raises(ValueError, match=r"option constraints must be one of \['equispaced', 'nodal'\] for disc 'hho'"):
+        RunOptions(disc="hho", constraints="bernstein")
     with pytest.raises(ValueError, match="option constraints must be one of"):
         FEMDiscretization(load_scene("test1").problem, CrissCrossSquare().mesh(0), order=2, constraints=None)
 
 
 def test_cli_flag_and_help(capsys):
     assert main(["run", "--help"]) == 0
-    assert "--constraints {nodal,equispaced}" in capsys.readouterr().out
+    assert "--constraints {nodal,equispaced,bernstein}" in capsys.readouterr().out
     assert main(["run", "test1", "--constraints", "lattice"]) == 2
     assert "--constraints" in capsys.readouterr().err
+    assert main(["run", "test1", "--disc", "sipg", "--constraints", "bernstein"]) == 2
+    assert "option --constraints must be one of ['equispaced', 'nodal'] for disc 'sipg'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("p", [1, 2, 3, 4])

@@ -135,7 +135,7 @@ class DGDiscretization(BrokenDiscretization):
         self.name, self.nfields = variant, problem.nfields
         self.theta, self.penalty, self.quad_bonus = VARIANTS[variant], c, quad_bonus
         self.constraints = constraints
-        self.basis = B = BrokenLagrange(mesh, order, constraint_node_set(constraints))
+        self.basis = B = BrokenLagrange(mesh, order, constraint_node_set(constraints, variant))
         self._check_data()
         ne, nc = B.ne, B.nc
         fes = L2(mesh, order=order, dgjumps=True)

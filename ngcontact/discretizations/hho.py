@@ -172,7 +172,7 @@ class HHODiscretization(BrokenDiscretization):
         self.problem, self.mesh, self.order, self.condense = problem, mesh, order, bool(condense)
         self.quad_bonus, self.reconstruction, self.nfields = quad_bonus, reconstruction, problem.nfields
         self.constraints = constraints
-        self.basis = B = BrokenLagrange(mesh, order, constraint_node_set(constraints))
+        self.basis = B = BrokenLagrange(mesh, order, constraint_node_set(constraints, "hho"))
         self._check_data()
         p, nc, ne = order, B.nc, B.ne
         self.A_loc = A = hho_element_matrices(B, reconstruction)

@@ -61,6 +61,11 @@ class LagrangeNodes:
     coords: np.ndarray
     level: np.ndarray
     _points: np.ndarray = None  # MeshPoints of the nodes (numbered by dof)
+    # element tables: H1 dofs (ne, npts) in NGSolve's local order, node of every lattice point (ne, npts),
+    # and the (element, lattice point) that represents each node (kept for other bases on the same nodes)
+    elem_dofs: np.ndarray = None
+    elem_nodes: np.ndarray = None
+    rep: tuple = None
 
     @classmethod
     def build(cls, fes, node_set: str = "positive") -> "LagrangeNodes":
@@ -139,7 +144,8 @@ class LagrangeNodes:
         coords = np.stack([np.asarray(x(points)).ravel(), np.asarray(y(points)).ravel()], axis=1)
 
         T = V if p == 1 else _block_triangular_inverse(V, dofs, level, p)
-        return cls(V=V, T=T, coords=coords, level=level, _points=points)
+        return cls(V=V, T=T, coords=coords, level=level, _points=points, elem_dofs=dofs, elem_nodes=node,
+                   rep=(e_of, j_of))
 
     @property
     def ndof(self) -> int:
@@ -148,6 +154,14 @@ class LagrangeNodes:
     def evaluate(self, cf) -> np.ndarray:
         """Values of a scalar CoefficientFunction at every node (vectorized)."""
         return np.asarray(cf(self._points)).reshape(-1)
+
+    def from_values(self, values: np.ndarray) -> np.ndarray:
+        """Coefficients in this basis of the interpolant with the given values at the nodes (the values)."""
+        return values
+
+    def to_values(self, coefficients: np.ndarray) -> np.ndarray:
+        """Values at the nodes of the function with the given coefficients (the coefficients)."""
+        return coefficients
 
     def transform(self, A: sp.spmatrix) -> sp.csr_matrix:
         """Matrix of a bilinear form in the Lagrange basis: ``T^T A T``."""

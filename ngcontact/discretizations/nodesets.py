@@ -33,12 +33,15 @@ import numpy as np
 from numpy.polynomial import legendre
 
 __all__ = ["lattice", "NODE_SETS", "reference_nodes", "edge_points", "cardinal_weights", "lebesgue_constant",
-           "constraint_node_set", "CONSTRAINTS"]
+           "constraint_node_set", "CONSTRAINTS", "NODAL_CONSTRAINTS"]
 
 NODE_SETS = ("positive", "equispaced")
 
-#: values of the ``constraints`` option and the node set each one uses
-CONSTRAINTS = {"nodal": "positive", "equispaced": "equispaced"}
+#: values of the ``constraints`` option and the node set each one uses ('bernstein': the domain points of
+#: the Bernstein basis, FEM only)
+CONSTRAINTS = {"nodal": "positive", "equispaced": "equispaced", "bernstein": "equispaced"}
+#: the values for discretizations with constraints at nodes only (HHO, dG)
+NODAL_CONSTRAINTS = ("nodal", "equispaced")
 
 # degrees whose equispaced lattice has a negative weight: Gauss-Lobatto edges + these interior orbits
 # (barycentric coordinates given for the lattice orbit named by its sorted integer coordinates)
@@ -63,10 +66,13 @@ def lattice(p: int) -> np.ndarray:
     return np.array(pts, dtype=int)
 
 
-def constraint_node_set(constraints: str) -> str:
-    """Node set of a ``constraints`` option value ('nodal' -> 'positive')."""
-    if constraints not in CONSTRAINTS:
-        raise ValueError(f"option constraints must be one of {sorted(CONSTRAINTS)}, got {constraints!r}")
+def constraint_node_set(constraints: str, disc: str = None) -> str:
+    """Node set of a ``constraints`` option value ('nodal' -> 'positive'); ``disc``: a discretization
+    with constraints at nodes only (no 'bernstein')."""
+    allowed = NODAL_CONSTRAINTS if disc else tuple(CONSTRAINTS)
+    if constraints not in allowed:
+        where = f" for disc {disc!r}" if disc else ""
+        raise ValueError(f"option constraints must be one of {sorted(allowed)}{where}, got {constraints!r}")
     return CONSTRAINTS[constraints]
 
 
