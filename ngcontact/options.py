@@ -95,7 +95,7 @@ class RunOptions:
     target_eta: Optional[float] = None
     max_time: Optional[float] = None
     max_levels: int = 30
-    constraints: str = "nodal"  # contact nodes: 'nodal' (positive node set) or 'equispaced' ([CAMWA21])
+    constraints: str = "nodal"  # 'nodal' (positive node set), 'equispaced' ([CAMWA21]) or 'bernstein' (fem)
 
     def __post_init__(self):
         def bad(name, want):
