@@ -21,7 +21,7 @@ import numpy as np
 from ..discretizations.nodesets import NODE_SETS, cardinal_weights, lattice, lebesgue_constant, reference_nodes
 from ..results.files import atomic_write
 from .compare import load_runs
-from .tables import fmt, md_row
+from .tables import fmt, md_row, report_main
 
 __all__ = ["node_set_table", "write_report", "main"]
 
@@ -146,16 +146,7 @@ def write_report(path, dirs) -> str:
 
 
 def main(argv=None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if len(argv) < 2:
-        print("usage: python -m ngcontact.studies.constraints OUT.md RUN_DIR...", file=sys.stderr)
-        return 2
-    try:
-        print(write_report(argv[0], argv[1:]))
-    except (ValueError, OSError) as exc:
-        print(f"constraints: error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return report_main("constraints", "OUT.md RUN_DIR...", write_report, argv)
 
 
 if __name__ == "__main__":
