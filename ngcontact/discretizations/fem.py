@@ -9,6 +9,10 @@ The multiplier is lam_h = sum_l (X3)_l Theta_l with
 * p >= 2: Theta_l the basis dual to the Lagrange basis, (Theta_l, psi_m) = delta_lm,
   so D = I and X3 >= 0  <=>  (lam_h, psi_l) >= 0 (Lambda_h^p of the seed).
 
+The nodes x_l are those of :mod:`ngcontact.discretizations.nodesets` (``constraints='nodal'``: no psi_l
+with a negative integral; 'equispaced': the lattice of [CAMWA21]); with ``constraints='bernstein'`` the
+X_a, X3 are coefficients in the Bernstein basis and its dual basis (:mod:`ngcontact.discretizations.bernstein`).
+
 The algebraic problem is (DS2): E X = F, X1 - X2 >= 0, X3 >= 0, (X1 - X2).X3 = 0,
 E = [[mu1 S, 0, -D], [0, mu2 S, D]], S the Lagrange-basis stiffness matrix,
 obtained from NGSolve's hierarchical H1 matrices by the exact change of

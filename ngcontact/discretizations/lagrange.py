@@ -7,7 +7,8 @@ basis (seed slides "Discrete complementarity problem", "Matrix
 representation").  This module builds, for a triangular mesh and an H1
 space,
 
-* the Lagrange lattice points of every element, deduplicated, numbered
+* the Lagrange nodes of every element (a node set of :mod:`ngcontact.discretizations.nodesets`,
+  labelled by the lattice points), deduplicated, numbered
   like the H1 dofs (entity by entity: a vertex node gets the vertex dof's
   number, the k-th node of an edge the k-th dof of that edge, ...), so that
   NGSolve's ``FreeDofs()`` marks the interior nodes directly;
