@@ -7,7 +7,7 @@ from ngcontact import CrissCrossSquare
 from ngcontact.cli import main
 from ngcontact.discretizations import DISCRETIZATIONS, FEMDiscretization
 from ngcontact.discretizations.lagrange import LagrangeNodes
-from ngcontact.discretizations.nodesets import reference_nodes
+from ngcontact.discretizations.nodesets import cardinal_weights, reference_nodes
 from ngcontact.drivers import RunOptions, run_scene
 from ngcontact.scenes import load_scene
 
@@ -58,8 +58,11 @@ def test_discretizations_put_their_constraints_on_the_chosen_nodes(disc, p):
     same = pts["nodal"].shape == pts["equispaced"].shape and np.array_equal(pts["nodal"], pts["equispaced"])
     assert same == (p == 3)
     if disc != "fem":
-        ref = DISCRETIZATIONS[disc](problem, mesh, order=p).basis.ref_nodes
-        np.testing.assert_array_equal(ref, reference_nodes(p, "positive")[:, :2])
+        basis = DISCRETIZATIONS[disc](problem, mesh, order=p).basis
+        np.testing.assert_array_equal(basis.ref_nodes, reference_nodes(p, "positive")[:, :2])
+        # the cell basis integrates to the node set's weights (reference triangle: |K| = 1/2)
+        np.testing.assert_allclose(2 * basis.mass_ref.sum(axis=1), cardinal_weights(reference_nodes(p, "positive")),
+                                   rtol=0, atol=1e-12)
 
 
 def test_p4_positive_nodes_beat_the_equispaced_lattice():
