@@ -66,6 +66,28 @@ results/fem/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
 	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@.part && mv $@.part $@
 
+## constraints-study: contact nodes whose Lagrange basis functions have no negative integral (--constraints
+## nodal, the default) against the equispaced lattice of [CAMWA21] (--constraints equispaced), P4: tests 1 and 2
+## FEM on T0..T4, test 1 HHO and SIPG on T0..T3, test 1 FEM --estimate on T0..T3; with the weights and
+## Lebesgue constants of the node sets, p = 1..6; --constraints bernstein: test 1 P2-P4 (nested T0..T4, cold
+## start T0..T3 next to nodal), test 2 P4, test 1 P4 --estimate -> results/fem/CONSTRAINTS.md.  `make -j2`: two at a time.
+CONS_RUNS := $(foreach c,nodal equispaced,$(foreach t,test1 test2,results/constraints/runs/$(t)-fem-p4-$(c)) \
+               $(foreach d,hho sipg,results/constraints/runs/test1-$(d)-p4-$(c)) results/constraints/runs/test1-fem-p4-$(c)-estimate) \
+             $(foreach p,2 3 4,results/constraints/runs/test1-fem-p$(p)-bernstein \
+               $(foreach c,nodal bernstein,results/constraints/runs/test1-fem-p$(p)-$(c)-cold)) \
+             results/constraints/runs/test2-fem-p4-bernstein results/constraints/runs/test1-fem-p4-bernstein-estimate
+.PHONY: constraints-study
+constraints-study: $(CONS_RUNS)
+	$(PY) -m ngcontact.studies.constraints results/fem/CONSTRAINTS.md $(CONS_RUNS)
+
+# words of a run name SCENE-DISC-pP-CONSTRAINTS[-estimate|-cold]; nested FEM without estimators on 5 levels, the others on 4
+cons_word = $(word $(1),$(subst -, ,$(2)))
+results/constraints/runs/%: $(STAMP)
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(call cons_word,1,$*) --disc $(call cons_word,2,$*) \
+	  --order $(subst p,,$(call cons_word,3,$*)) --constraints $(call cons_word,4,$*) \
+	  $(if $(filter estimate,$(call cons_word,5,$*)),--estimate) $(if $(filter cold,$(call cons_word,5,$*)),--start cold) \
+	  --levels $(if $(call cons_word,5,$*)$(filter-out fem,$(call cons_word,2,$*)),4,5) --no-vtk --no-plots -q --out $@.part && mv $@.part $@
+
 ## compare: FEM vs HHO (SC / no SC) vs SIPG / NIPG on [CAMWA21] tests 1, 2,
 ## p = 1..4, T0..T4 (nested start), plus cold-start Newton counts of FEM and HHO
 ## -> results/compare/REPORT.md.  `make -j2 compare` runs the independent runs in parallel.

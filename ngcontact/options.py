@@ -23,6 +23,7 @@ from typing import Optional
 
 from .algebra.linalg import SOLVERS
 from .discretizations import DISCRETIZATIONS
+from .discretizations.nodesets import CONSTRAINTS, NODAL_CONSTRAINTS
 from .estimators import EstimatorOptions
 from .marking import check_marking
 from .newton import DirectSolve, KrylovSolve, NewtonOptions, StopOptions
@@ -94,6 +95,7 @@ class RunOptions:
     target_eta: Optional[float] = None
     max_time: Optional[float] = None
     max_levels: int = 30
+    constraints: str = "nodal"  # 'nodal' (positive node set), 'equispaced' ([CAMWA21]) or 'bernstein' (fem)
 
     def __post_init__(self):
         def bad(name, want):
@@ -108,6 +110,10 @@ class RunOptions:
             bad("levels", "an integer between 1 and 12")
         if self.start not in ("nested", "cold"):
             bad("start", "'nested' or 'cold'")
+        if self.constraints not in CONSTRAINTS:
+            bad("constraints", f"one of {sorted(CONSTRAINTS)}")
+        if self.disc != "fem" and self.constraints not in NODAL_CONSTRAINTS:
+            bad("constraints", f"one of {sorted(NODAL_CONSTRAINTS)} for disc {self.disc!r} (bernstein: fem only)")
         if self.solver not in SOLVERS:
             bad("solver", f"one of {SOLVERS}")
         for name in ("condense", "estimate", "decouple", "adaptive"):

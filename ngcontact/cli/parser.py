@@ -61,6 +61,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "with --adaptive use --max-levels")
     r.add_argument("--disc", choices=["fem", "hho", "sipg", "nipg", "iipg"],
                    help="discretization: fem (conforming P_p), hho (hybrid high-order), sipg/nipg/iipg (dG)")
+    r.add_argument("--constraints", choices=["nodal", "equispaced", "bernstein"],
+                   help="contact constraints: nodal (default; at a node set on which no Lagrange basis function "
+                        "has a negative integral: differs from the lattice at p = 4), equispaced (the lattice of "
+                        "[CAMWA21]; its p = 4 edge midpoints have weight -1/45 and P4 converges at rate 1) or "
+                        "bernstein (fem: nonnegative Bernstein coefficients of u1 - u2, the multiplier dual to the "
+                        "Bernstein basis)")
     r.add_argument("--cfun", choices=["min", "fb"], help="C-function: min (Newton-min) or fb (Fischer-Burmeister)")
     r.add_argument("--start", choices=["nested", "cold"],
                    help="initial guess per level: nested (the previous level's solution, default) or cold")

@@ -104,7 +104,7 @@ def _run_options(scene, args):
                  newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu,
                  decouple=True if args.decouple else None, newton_stop=args.newton_stop,
                  gamma_balance=args.gamma_balance, ilu_drop_tol=args.ilu_drop_tol, ilu_fill=args.ilu_fill,
-                 max_ndof=args.max_ndof)
+                 max_ndof=args.max_ndof, constraints=args.constraints)
     adaptive_opts = dict(marking=args.marking, theta=args.theta, target_eta=args.target_eta,
                          max_time=args.max_time, max_levels=args.max_levels)
     if not args.adaptive and any(v is not None for v in adaptive_opts.values()):

@@ -20,7 +20,7 @@ from ..domains import INTERFACE
 from ..problems.base import check_data_on_points
 from ..problems.membranes import TwoMembraneProblem
 from .base import Discretization, evaluate_at_points
-from .lagrange import lattice
+from .nodesets import lattice, reference_nodes
 
 __all__ = ["BrokenLagrange", "BrokenDiscretization"]
 
@@ -40,8 +40,9 @@ def _quadrature(shape, order: int):
 class BrokenLagrange:
     """Per-cell Lagrange nodal basis of P_p(T_h) on an affine triangular mesh.
 
-    The nodes of cell K are the lattice points :func:`ngcontact.discretizations.lagrange.lattice`
-    mapped by x = xi v0 + eta v1 + (1 - xi - eta) v2 (NGSolve's element map).
+    The nodes of cell K are the reference nodes of ``node_set``
+    (:func:`ngcontact.discretizations.nodesets.reference_nodes`, labelled by the lattice points
+    ``lat``) mapped by x = xi v0 + eta v1 + (1 - xi - eta) v2 (NGSolve's element map).
 
     Attributes
     ----------
@@ -64,7 +65,7 @@ class BrokenLagrange:
         node lies on the domain boundary.
     """
 
-    def __init__(self, mesh, order: int):
+    def __init__(self, mesh, order: int, node_set: str = "positive"):
         ngmesh = mesh.ngmesh
         elems = ngmesh.Elements2D().NumPy()
         if np.any(elems["type"] != 10):  # netgen TRIG (straight, 3 nodes)
@@ -83,7 +84,7 @@ class BrokenLagrange:
         # reference Lagrange basis: phi_i = sum_j C[j, i] m_j, monomials m_j = xi^a eta^b
         self.lat = lattice(order)
         self.nc = nc = len(self.lat)
-        self.ref_nodes = self.lat[:, :2] / order
+        self.ref_nodes = reference_nodes(order, node_set)[:, :2]
         self.exponents = np.array([(a, b) for a in range(order + 1) for b in range(order + 1 - a)])
         self._C = np.linalg.inv(self._monomials(self.ref_nodes))
         self.coords = self.map_points(self.ref_nodes)

@@ -64,6 +64,7 @@ from ..algebra.linalg import sparse_solve
 from ..algebra.system import ComplementaritySystem
 from .base import assemble_load, scipy_csr
 from .broken import BrokenDiscretization, BrokenLagrange
+from .nodesets import constraint_node_set
 
 __all__ = ["DGDiscretization", "DGComplementaritySystem", "VARIANTS"]
 
@@ -112,6 +113,9 @@ class DGDiscretization(BrokenDiscretization):
         c in sigma_F = c p^2 / h (default 10).
     quad_bonus : int
         extra quadrature order for data and errors.
+    constraints : str
+        'nodal' (default): cell nodes of the positive node set (:mod:`~ngcontact.discretizations.nodesets`);
+        'equispaced': the equispaced lattice of [CAMWA21] (the same nodes for p = 1, 2, 3).
     """
 
     name = "dg"
@@ -119,7 +123,7 @@ class DGDiscretization(BrokenDiscretization):
     default_penalty = 10.0
 
     def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", variant: str = "sipg",
-                 penalty=None, quad_bonus: int = 6):
+                 penalty=None, quad_bonus: int = 6, constraints: str = "nodal"):
         if variant not in VARIANTS:
             raise ValueError(f"variant must be one of {sorted(VARIANTS)}, got {variant!r}")
         self._check_setting("dg", problem, mesh, order)
@@ -130,7 +134,8 @@ class DGDiscretization(BrokenDiscretization):
         self.problem, self.mesh, self.order, self.variant = problem, mesh, order, variant
         self.name, self.nfields = variant, problem.nfields
         self.theta, self.penalty, self.quad_bonus = VARIANTS[variant], c, quad_bonus
-        self.basis = B = BrokenLagrange(mesh, order)
+        self.constraints = constraints
+        self.basis = B = BrokenLagrange(mesh, order, constraint_node_set(constraints, variant))
         self._check_data()
         ne, nc = B.ne, B.nc
         fes = L2(mesh, order=order, dgjumps=True)

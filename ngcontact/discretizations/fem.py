@@ -9,6 +9,10 @@ The multiplier is lam_h = sum_l (X3)_l Theta_l with
 * p >= 2: Theta_l the basis dual to the Lagrange basis, (Theta_l, psi_m) = delta_lm,
   so D = I and X3 >= 0  <=>  (lam_h, psi_l) >= 0 (Lambda_h^p of the seed).
 
+The nodes x_l are those of :mod:`ngcontact.discretizations.nodesets` (``constraints='nodal'``: no psi_l
+with a negative integral; 'equispaced': the lattice of [CAMWA21]); with ``constraints='bernstein'`` the
+X_a, X3 are coefficients in the Bernstein basis and its dual basis (:mod:`ngcontact.discretizations.bernstein`).
+
 The algebraic problem is (DS2): E X = F, X1 - X2 >= 0, X3 >= 0, (X1 - X2).X3 = 0,
 E = [[mu1 S, 0, -D], [0, mu2 S, D]], S the Lagrange-basis stiffness matrix,
 obtained from NGSolve's hierarchical H1 matrices by the exact change of
@@ -28,7 +32,9 @@ from ..algebra.system import ComplementaritySystem
 from ..domains import DIRICHLET
 from ..problems.base import check_data_on_points
 from .base import Discretization, assemble_load, evaluate_at_points, scipy_csr
+from .bernstein import BernsteinBasis
 from .lagrange import LagrangeNodes, meshpoints
+from .nodesets import constraint_node_set
 
 __all__ = ["FEMDiscretization"]
 
@@ -60,22 +66,31 @@ class FEMDiscretization(Discretization):
         sparse SPD solver of the Newton steps ('sparsecholesky' or 'scipy').
     quad_bonus : int
         extra quadrature order for data (loads, errors).
+    constraints : str
+        'nodal' (default): constraints at the Lagrange nodes of the positive node set
+        (:mod:`~ngcontact.discretizations.nodesets`: no cardinal function has a negative integral);
+        'equispaced': at the equispaced lattice of [CAMWA21] (the same nodes for p = 1, 2, 3);
+        'bernstein': unknowns are Bernstein coefficients (:mod:`~ngcontact.discretizations.bernstein`),
+        the gap's coefficients >= 0 and the multiplier in the dual basis (the same as 'nodal' for p = 1).
     """
 
     name = "fem"
     orders = (1, 2, 3, 4)
     estimable = True
 
-    def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6):
+    def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6,
+                 constraints: str = "nodal"):
         if order not in self.orders:
             raise ValueError(f"order must be 1, 2, 3 or 4 for fem, got {order!r}")
+        node_set = constraint_node_set(constraints)
+        self.constraints = constraints
         t0 = time.perf_counter()
         self.problem, self.mesh, self.order, self.quad_bonus = problem, mesh, order, quad_bonus
         self._mass = self._mass_lu = None  # nodal mass matrix and its LU factors, built on first use
         if getattr(problem.domain, "curved", False) and order > 1:
             mesh.Curve(order)
         self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
-        self.nodes = nodes = LagrangeNodes.build(fes)
+        self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" else LagrangeNodes.build(fes, node_set)
         free = np.array(list(fes.FreeDofs()), dtype=bool)
         self.interior = np.flatnonzero(free)
         self.boundary = np.flatnonzero(~free)
@@ -84,6 +99,7 @@ class FEMDiscretization(Discretization):
         # data at the nodes, checked once
         data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()}
         check_data_on_points(problem, data, ~free, nodes.coords)
+        coef = {name: nodes.from_values(v) for name, v in data.items()}  # coefficients of the interpolants
 
         u, v = fes.TnT()
         with TaskManager():
@@ -100,7 +116,7 @@ class FEMDiscretization(Discretization):
         for mu, f, gname in zip(problem.mus, problem.loads, problem.dirichlet_names):
             Fn = nodes.T.T @ self._load(f, v)
             gb = np.zeros(fes.ndof)
-            gb[self.boundary] = data[gname][self.boundary]
+            gb[self.boundary] = coef[gname][self.boundary]
             self.lift.append(gb)
             F.append(Fn[self.interior] - mu * (Sib @ gb[self.boundary]))
         self.nfields = problem.nfields
@@ -108,7 +124,7 @@ class FEMDiscretization(Discretization):
         if problem.obstacle is None:  # u1 - u2 >= 0
             up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
         else:  # u - psi >= 0
-            up, lo, b = np.arange(ni), -np.ones(ni, dtype=np.int64), data["psi"][self.interior]  # psi of problem.data()
+            up, lo, b = np.arange(ni), -np.ones(ni, dtype=np.int64), coef["psi"][self.interior]  # psi of problem.data()
         self.system = ComplementaritySystem(K, np.concatenate(F), up, lo, b, self.D, solver=solver,
                                              stiffness_scale=problem.stiffness_scale)
         self.time_assembly = time.perf_counter() - t0
@@ -139,7 +155,7 @@ class FEMDiscretization(Discretization):
         x0 = np.zeros(self.nfields * ni)
         for a, cf in enumerate(fields or ()):
             if cf is not None:
-                x0[a * ni:(a + 1) * ni] = self.nodes.evaluate(CoefficientFunction(cf))[self.interior]
+                x0[a * ni:(a + 1) * ni] = self.nodes.from_values(self.nodes.evaluate(CoefficientFunction(cf)))[self.interior]
         return x0, np.zeros(ni)
 
     def prolongate(self, previous: "FEMDiscretization", x, y):
@@ -157,9 +173,14 @@ class FEMDiscretization(Discretization):
                 return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1])
         gfs = previous.gridfunctions(x, y)
         curved = getattr(previous.problem.domain, "curved", False) and previous.order > 1
+        bernstein = self.constraints == "bernstein" and self.order > 1
+        if bernstein:  # Bernstein coefficients need the values at all domain points
+            pts = self.nodes.coords
         mp = None if curved else _locate(previous.mesh, pts)  # one point search for all fields
-        x0 = np.concatenate([_evaluate_at(previous.mesh, gfs[n], pts, mp) for n in names])
-        lam = _evaluate_at(previous.mesh, gfs["lam"], pts, mp)
+        vals = [_evaluate_at(previous.mesh, gfs[n], pts, mp) for n in names + ["lam"]]
+        if bernstein:
+            vals = [self.nodes.from_values(v)[self.interior] for v in vals]
+        x0, lam = np.concatenate(vals[:-1]), vals[-1]
         if self.order == 1:
             y0 = lam
         else:  # y_l = (lam_h, psi_l) for the interpolated lam_h
@@ -224,7 +245,7 @@ class FEMDiscretization(Discretization):
             d = ex.gradient(a + 1) - grad(gfs[name])
             e2 += mu * Integrate(InnerProduct(d, d), self.mesh, order=order)
             exact_nodal = self.nodes.evaluate(ex.u1 if a == 0 else ex.u2)
-            emax = max(emax, float(np.max(np.abs(exact_nodal - nodal[name]))))
+            emax = max(emax, float(np.max(np.abs(exact_nodal - self.nodes.to_values(nodal[name])))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
 

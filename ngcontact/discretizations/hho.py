@@ -67,6 +67,7 @@ from ngsolve import SEGM, TRIG
 from ..algebra.system import ComplementaritySystem
 from .broken import BrokenDiscretization, BrokenLagrange, _quadrature
 from .condensed import CondensedHHOSystem
+from .nodesets import constraint_node_set
 
 __all__ = ["HHODiscretization", "CondensedHHOSystem", "hho_element_matrices"]
 
@@ -150,6 +151,9 @@ class HHODiscretization(BrokenDiscretization):
         gradient reconstruction in grad P_p(K) (default) or P_p(K; R^2) (seed slide; suboptimal).
     quad_bonus : int
         extra quadrature order for data and errors.
+    constraints : str
+        'nodal' (default): cell nodes of the positive node set (:mod:`~ngcontact.discretizations.nodesets`);
+        'equispaced': the equispaced lattice of [CAMWA21] (the same nodes for p = 1, 2, 3).
 
     Attributes
     ----------
@@ -162,12 +166,13 @@ class HHODiscretization(BrokenDiscretization):
     orders = (1, 2, 3, 4)
 
     def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", condense: bool = True,
-                 reconstruction: str = "potential", quad_bonus: int = 6):
+                 reconstruction: str = "potential", quad_bonus: int = 6, constraints: str = "nodal"):
         self._check_setting("hho", problem, mesh, order)
         t0 = time.perf_counter()
         self.problem, self.mesh, self.order, self.condense = problem, mesh, order, bool(condense)
         self.quad_bonus, self.reconstruction, self.nfields = quad_bonus, reconstruction, problem.nfields
-        self.basis = B = BrokenLagrange(mesh, order)
+        self.constraints = constraints
+        self.basis = B = BrokenLagrange(mesh, order, constraint_node_set(constraints, "hho"))
         self._check_data()
         p, nc, ne = order, B.nc, B.ne
         self.A_loc = A = hho_element_matrices(B, reconstruction)

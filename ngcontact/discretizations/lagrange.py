@@ -7,7 +7,8 @@ basis (seed slides "Discrete complementarity problem", "Matrix
 representation").  This module builds, for a triangular mesh and an H1
 space,
 
-* the Lagrange lattice points of every element, deduplicated, numbered
+* the Lagrange nodes of every element (a node set of :mod:`ngcontact.discretizations.nodesets`,
+  labelled by the lattice points), deduplicated, numbered
   like the H1 dofs (entity by entity: a vertex node gets the vertex dof's
   number, the k-th node of an edge the k-th dof of that edge, ...), so that
   NGSolve's ``FreeDofs()`` marks the interior nodes directly;
@@ -31,22 +32,9 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import VOL, ElementId, IntegrationRule, x, y
 
+from .nodesets import lattice, reference_nodes
+
 __all__ = ["LagrangeNodes", "lattice", "meshpoints"]
-
-
-def lattice(p: int) -> np.ndarray:
-    """Integer barycentric coordinates (b0, b1, b2), b0+b1+b2 = p, of the P_p lattice.
-
-    The reference point of NGSolve's triangle is (b0/p, b1/p)
-    (vertices (1,0), (0,1), (0,0)).
-
-    >>> lattice(1).tolist()
-    [[0, 0, 1], [0, 1, 0], [1, 0, 0]]
-    >>> len(lattice(4))
-    15
-    """
-    pts = [(i, j, p - i - j) for i in range(p + 1) for j in range(p + 1 - i)]
-    return np.array(pts, dtype=int)
 
 
 # local edges of an NGSolve triangle, as pairs of local vertices
@@ -74,13 +62,22 @@ class LagrangeNodes:
     coords: np.ndarray
     level: np.ndarray
     _points: np.ndarray = None  # MeshPoints of the nodes (numbered by dof)
+    # element tables: H1 dofs (ne, npts) in NGSolve's local order, node of every lattice point (ne, npts),
+    # and the (element, lattice point) that represents each node (kept for other bases on the same nodes)
+    elem_dofs: np.ndarray = None
+    elem_nodes: np.ndarray = None
+    rep: tuple = None
 
     @classmethod
-    def build(cls, fes) -> "LagrangeNodes":
-        """Build nodes, evaluation matrix and its inverse for ``fes = H1(mesh, order=p)``."""
+    def build(cls, fes, node_set: str = "positive") -> "LagrangeNodes":
+        """Build nodes, evaluation matrix and its inverse for ``fes = H1(mesh, order=p)``.
+
+        ``node_set``: the reference nodes (:func:`~ngcontact.discretizations.nodesets.reference_nodes`,
+        'positive' or 'equispaced'); their labels are the lattice points of ``lattice(p)``."""
         mesh = fes.mesh
         p = fes.globalorder
         lat = lattice(p)
+        ref = reference_nodes(p, node_set)  # barycentric coordinates of the node of lattice point j
         npts = len(lat)
         ne = mesh.ne
         ndof = fes.ndof
@@ -134,7 +131,7 @@ class LagrangeNodes:
             for c in np.unique(cls_id):
                 rep = int(np.flatnonzero(cls_id == c)[0])
                 fe = fes.GetFE(ElementId(VOL, rep))
-                block = np.array([np.asarray(fe.CalcShape(b[0] / p, b[1] / p)) for b in lat])
+                block = np.array([np.asarray(fe.CalcShape(b[0], b[1])) for b in ref])
                 vloc[cls_id == c] = block
             rows = np.repeat(np.arange(ndof), ndof_loc)
             cols = dofs[e_of].ravel()
@@ -142,13 +139,14 @@ class LagrangeNodes:
             keep = np.abs(vals) > 1e-13
             V = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(ndof, ndof))
 
-        # --- one MeshPoint per node (its element e_of, reference point lat[j_of] / p): coordinates and
+        # --- one MeshPoint per node (its element e_of, reference point ref[j_of]): coordinates and
         # data are evaluated at ndof points, not at the ne * npts points of MapToAllElements
-        points = meshpoints(mesh, e_of, lat[j_of, 0] / p, lat[j_of, 1] / p)
+        points = meshpoints(mesh, e_of, ref[j_of, 0], ref[j_of, 1])
         coords = np.stack([np.asarray(x(points)).ravel(), np.asarray(y(points)).ravel()], axis=1)
 
         T = V if p == 1 else _block_triangular_inverse(V, dofs, level, p)
-        return cls(V=V, T=T, coords=coords, level=level, _points=points)
+        return cls(V=V, T=T, coords=coords, level=level, _points=points, elem_dofs=dofs, elem_nodes=node,
+                   rep=(e_of, j_of))
 
     @property
     def ndof(self) -> int:
@@ -157,6 +155,14 @@ class LagrangeNodes:
     def evaluate(self, cf) -> np.ndarray:
         """Values of a scalar CoefficientFunction at every node (vectorized)."""
         return np.asarray(cf(self._points)).reshape(-1)
+
+    def from_values(self, values: np.ndarray) -> np.ndarray:
+        """Coefficients in this basis of the interpolant with the given values at the nodes (the values)."""
+        return values
+
+    def to_values(self, coefficients: np.ndarray) -> np.ndarray:
+        """Values at the nodes of the function with the given coefficients (the coefficients)."""
+        return coefficients
 
     def transform(self, A: sp.spmatrix) -> sp.csr_matrix:
         """Matrix of a bilinear form in the Lagrange basis: ``T^T A T``."""

@@ -104,7 +104,7 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     """
     Disc = DISCRETIZATIONS[options.disc]
     kw = {"condense": options.condense} if options.disc == "hho" else {}
-    disc = Disc(problem, mesh, order=options.order, solver=options.solver, **kw)
+    disc = Disc(problem, mesh, order=options.order, solver=options.solver, constraints=options.constraints, **kw)
     warm = previous is not None and options.start == "nested"
     t0 = time.perf_counter()
     x0, y0 = disc.prolongate(*previous) if warm else disc.initial_guess(initial_guess)

@@ -21,6 +21,7 @@ def markdown_table(run_dirs) -> str:
         s = read_summary(d)
         o = s["options"]
         out.append(f"### {s['scene']}: {o['disc'].upper()} P{o['order']}, Newton-{o['cfun']}, {o['start']} start"
+                   + (", equispaced constraints" if o.get("constraints") == "equispaced" else "")
                    + ("" if s["converged"] else "  **(NOT converged: " + "; ".join(s["failures"]) + ")**")
                    + ("" if s["complete"] else f"  **(incomplete: {s['reason']})**"))
         has_err = bool(rows) and "err_energy" in rows[0]

@@ -26,7 +26,7 @@ from pathlib import Path
 
 
 from ..results import read_history
-from .tables import fmt, time_to_reach
+from .tables import fmt, report_main, time_to_reach
 
 __all__ = ["load_runs", "write_report", "main"]
 
@@ -244,16 +244,7 @@ def write_report(out_dir, run_dirs) -> Path:
 
 
 def main(argv=None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if len(argv) < 2:
-        print("usage: python -m ngcontact.studies.compare OUT_DIR RUN_DIR...", file=sys.stderr)
-        return 2
-    try:
-        print(write_report(argv[0], argv[1:]))
-    except (ValueError, OSError) as exc:
-        print(f"compare: error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return report_main("compare", "OUT_DIR RUN_DIR...", write_report, argv)
 
 
 if __name__ == "__main__":

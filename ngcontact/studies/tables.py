@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-__all__ = ["time_to_reach", "fmt", "md_row"]
+__all__ = ["time_to_reach", "fmt", "md_row", "report_main"]
 
 
 def time_to_reach(times, errors, target: float) -> float:
@@ -54,3 +54,21 @@ def md_row(cells) -> str:
     '| a | 1 |'
     """
     return "| " + " | ".join(map(str, cells)) + " |"
+
+
+def report_main(name: str, usage: str, write, argv=None) -> int:
+    """The command line of a study report: ``python -m ngcontact.studies.NAME OUT RUN_DIR...`` calls
+    ``write(OUT, RUN_DIRS)`` and prints the text it returns; exit code 2 with one line on bad usage or a
+    ValueError / OSError."""
+    import sys
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if len(argv) < 2:
+        print(f"usage: python -m ngcontact.studies.{name} {usage}", file=sys.stderr)
+        return 2
+    try:
+        print(write(argv[0], argv[1:]))
+    except (ValueError, OSError) as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
