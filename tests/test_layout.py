@@ -24,11 +24,12 @@ ALLOWED = {
     "options": _BASE | {"discretizations", "newton", "estimators"},
     "scenes": {"problems", "domains"},
     "drivers": _BASE | {"problems", "discretizations", "newton", "estimators", "options"},
+    "timestepping": _BASE | {"problems", "discretizations", "newton", "estimators", "results"},
     "results": {"rates", ""},
     "plotting": {"results", "rates", "domains"},
     "studies": _BASE | {"problems", "discretizations", "newton", "estimators", "options", "scenes", "drivers",
-                        "results", "plotting", "cli"},
-    "cli": _BASE | {"problems", "options", "scenes", "drivers", "results", "plotting"},
+                        "results", "plotting", "cli", "timestepping"},
+    "cli": _BASE | {"problems", "options", "scenes", "drivers", "results", "plotting", "timestepping"},
     "__main__": {"cli"},
     "": {"domains", "problems"},  # the package itself: the names of `from ngcontact import ...`
 }

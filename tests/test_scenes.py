@@ -3,12 +3,15 @@ import numpy as np
 import pytest
 
 from ngcontact.drivers import RunOptions, run_scene
+from ngcontact.problems import ParabolicProblem
 from ngcontact.scenes import list_scenes, load_scene
 
 
 @pytest.mark.parametrize("name", list_scenes())
 def test_scene_runs_in_test_mode(name):
     scene = load_scene(name)
+    if isinstance(scene.problem, ParabolicProblem):
+        pytest.skip("time-dependent scene: run by tests/test_parabolic.py")
     opts = RunOptions.for_scene(scene, **scene.test_options)
     res = run_scene(scene, opts)
     assert res.converged, res.failures
