@@ -2,7 +2,7 @@
 
 mu1 = mu2 = 1, g1 = g2 = 0, T = 0.5.  With s = u1 + u2 and w = u1 - u2:
 
-    s   = (1 + t) sin(pi x) sin(pi y)                      (no contact: d_t s - Lap s = f1 + f2),
+    s   = sin(pi x) sin(pi y)                              (no contact: d_t s - Lap s = f1 + f2),
     w   = c (x - a)_+^3 (1 - x) y (1 - y) >= 0,              contact set {x <= a(t)},
     lam = k (a - x)_+ y (1 - y) >= 0,                        lam w = 0,
     f1 - f2 = d_t w - Lap w - 2 lam,   f1 + f2 = d_t s - Lap s,
@@ -24,7 +24,7 @@ t = Parameter(0.0)
 c, k = 10.0, 1.0
 a = 0.2 + 0.5 * t
 z = x - a
-s = (1 + t) * sin(pi * x) * sin(pi * y)
+s = sin(pi * x) * sin(pi * y)
 w = c * IfPos(z, z**3, 0.0) * (1 - x) * y * (1 - y)
 lam = k * IfPos(z, 0.0, -z) * y * (1 - y)
 

@@ -241,7 +241,11 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
                  err_spacetime=math.sqrt(err2 + eT2 + 0.0))
         if est is not None:
             s["i_eff"] = s["eta_st"] / s["err_spacetime"] if s["err_spacetime"] > 0 else float("nan")
-    if problem.stationary.exact is not None:  # distance at T to the stationary exact solution
+    if problem.stationary.exact is not None:  # distances at T to the stationary exact and discrete solutions
         s["dist_stationary_T"] = disc.errors(x, y)["err_energy"]
+        stat = semismooth_newton(disc.system, x, y, o.newton_options)
+        d = x - stat.x
+        s["dist_stationary_discrete_T"] = math.sqrt(max(float(d @ (disc.system.K @ d)), 0.0))
+        s["err_stationary_discrete"] = disc.errors(stat.x, stat.y)["err_energy"]
     res.summary = s
     return res
