@@ -123,3 +123,14 @@ estimator-study: $(EST_RUNS)
 results/estimators/runs/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst ., ,$*)) --order $(subst p,,$(word 2,$(subst ., ,$*))) \
 	  --levels $(subst L,,$(word 3,$(subst ., ,$*))) --start cold --estimate --no-vtk --no-plots -q --out $@.part && mv $@.part $@
+
+## parabolic-study: [CMAME20] tests 6.1 and 6.2 at the paper's sizes (P1 ~19k triangles, P2 ~4k, 300 steps),
+## the manufactured solution (rates in h and dt, I_eff), adaptive time steps -> results/parabolic/REPORT.md
+## (hours on 2 cores; finished experiments are cached in results/parabolic/runs/)
+.PHONY: parabolic-study parabolic-study-quick
+parabolic-study: $(STAMP)
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.parabolic results/parabolic --size full
+
+## parabolic-study-quick: the same at the sizes that fit a short session -> results/parabolic/quick/REPORT.md
+parabolic-study-quick: $(STAMP)
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.parabolic results/parabolic/quick --size quick

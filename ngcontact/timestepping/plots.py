@@ -50,7 +50,8 @@ def write_parabolic_plots(result, title: str) -> dict:
             ax.semilogy(t, np.where(v > 0, v, np.nan), label=label)
     ax.set_xlabel("t")
     ax.set_title(f"{title}: estimator parts per step")
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     figs["estimators_t.png"] = fig
 

@@ -69,7 +69,7 @@ def run_parabolic_scene(scene, given: dict = None, *, progress=None, snapshot_ev
 def write_parabolic_run(out, scene, result, options, mesh_opts, *, argv=None, plots: bool = True,
                         vtk_every: int = 0) -> Path:
     """Write the run directory ``out`` (module docstring); returns its path."""
-    from .. import __version__
+    from ..results import __version__
 
     d = OutputDir(out, "run", "--out")
     d.start()
