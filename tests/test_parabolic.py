@@ -138,3 +138,31 @@ def test_adaptive_dt_takes_fewer_steps():
     r = run_parabolic(sc.problem, sc.problem.domain.mesh(0), opts)
     assert r.converged and abs(r.summary["t_final"] - 0.3) < 1e-12
     assert len(r.rows) < 30
+
+
+# ------------------------------------------------------------------ command line
+def test_cli_time_dependent_run(tmp_path, capsys):
+    from ngcontact.cli import main
+
+    out = tmp_path / "run"
+    assert main(["run", "parabolic_disk", "--test", "--t-final", "0.1", "-q", "--vtk-every", "2",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "5 steps to t = 0.1" in text
+    for name in ("steps.csv", "summary.json", "contact_spacetime.csv", "solution.pvd", "contact_area.png",
+                 "contact_spacetime.png", "estimators_t.png", "iterations_t.png"):
+        assert (out / name).is_file(), name
+    assert (out / "solution.pvd").read_text().count("<DataSet") == 3  # steps 2, 4 and the last
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["run", "parabolic_disk", "--dt", "-1"], "option --dt must be > 0, got -1.0"),
+    (["run", "parabolic_disk", "--levels", "2"], "--levels do not apply to the time-dependent scene"),
+    (["run", "disk", "--dt", "0.1"], "--dt need a time-dependent scene"),
+])
+def test_cli_time_dependent_usage_errors(args, msg, capsys, tmp_path):
+    from ngcontact.cli import main
+
+    assert main([*args, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert msg in err and len(err.strip().splitlines()) == 1
