@@ -27,8 +27,8 @@ __all__ = ["SIZES", "run_study", "write_report"]
 
 SIZES = {
     "quick": dict(disk_levels=(0, 1), rings_maxh=0.05, rings_p2_maxh=0.1, table_maxh=0.1, table_p2_maxh=0.2,
-                  table_T=0.3, mms_levels=(0, 1, 2, 3), mms_p2_levels=(0, 1, 2), mms_dt_level=1,
-                  adapt_maxh=0.1),
+                  table_T=0.1, mms_levels=(0, 1, 2, 3), mms_p2_levels=(0, 1, 2), mms_dt_level=1,
+                  adapt_maxh=0.15),
     "full": dict(disk_levels=(0, 1, 2), rings_maxh=0.02, rings_p2_maxh=0.045, table_maxh=0.02, table_p2_maxh=0.045,
                  table_T=0.3, mms_levels=(0, 1, 2, 3, 4), mms_p2_levels=(0, 1, 2, 3), mms_dt_level=2,
                  adapt_maxh=0.05),

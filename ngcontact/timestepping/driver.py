@@ -187,6 +187,7 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
                 cum["rejected"] += 1
                 cum["newton"] += sol.iterations
                 cum["gmres"] += sol.gmres_total
+                cum["fact"] += row["factorizations"]
                 say(f"  step {n + 1}: t={t_new:.4g} rejected (eta_tm={B / math.sqrt(3):.2e} > {o.reject:g} eta_sp="
                     f"{A:.2e}); dt -> {dt:.3g}")
                 continue

@@ -37,7 +37,7 @@ class SharedDirectSolve:
     """The direct linear-solve strategy of the Newton loop with ONE :class:`FactorReuse` for the whole
     time integration: a step system with the same E (dt unchanged) starts from the last factorization.
 
-    ``factorizations`` counts the fresh factorizations (records with ``linear_path`` 0 or 2)."""
+    The driver counts the fresh factorizations: records with ``linear_path`` 0 or 2."""
 
     record_type = IterationRecord
 
