@@ -165,3 +165,14 @@ twophase-study: $(STAMP)
 	rm -rf results/twophase.part
 	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.twophase results/twophase.part
 	rm -rf results/twophase && mv results/twophase.part results/twophase
+
+## parabolic-study: [CMAME20] tests 6.1 and 6.2 at the paper's sizes (P1 ~19k triangles, P2 ~4k, 300 steps),
+## the manufactured solution (rates in h and dt, I_eff), adaptive time steps -> results/parabolic/REPORT.md
+## (hours on 2 cores; finished experiments are cached in results/parabolic/runs/)
+.PHONY: parabolic-study parabolic-study-quick
+parabolic-study: $(STAMP)
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.parabolic results/parabolic --size full
+
+## parabolic-study-quick: the same at the sizes that fit a short session -> results/parabolic/quick/REPORT.md
+parabolic-study-quick: $(STAMP)
+	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.parabolic results/parabolic/quick --size quick

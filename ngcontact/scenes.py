@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
-from .problems import ObstacleProblem, TwoMembraneProblem
+from .problems import ObstacleProblem, ParabolicProblem, TwoMembraneProblem
 from .twophase.params import TwoPhaseParams
 
 __all__ = ["Scene", "SceneError", "load_scene", "cases_dir", "list_scenes"]
@@ -40,6 +40,7 @@ class Scene:
     defaults: dict = field(default_factory=dict)
     initial_guess: Optional[tuple] = None
     test_options: dict = field(default_factory=dict)
+    module: object = None  # the scene's module (time-dependent scenes: REGIONS, SPACE_AXIS)
 
 
 def cases_dir() -> Path:
@@ -103,9 +104,10 @@ def load_scene(spec: str) -> Scene:
             where = f" (line {exc.lineno})"
         raise SceneError(f"scene {path.name}{where}: {type(exc).__name__}: {exc}") from exc
     problem = getattr(module, "problem", None)
-    if not isinstance(problem, (TwoMembraneProblem, ObstacleProblem, TwoPhaseParams)):
+    if not isinstance(problem, (TwoMembraneProblem, ObstacleProblem, ParabolicProblem, TwoPhaseParams)):
         raise SceneError(
-            f"scene {path.name} must define `problem` as a TwoMembraneProblem, ObstacleProblem or TwoPhaseParams"
+            f"scene {path.name} must define `problem` as a TwoMembraneProblem, ObstacleProblem, ParabolicProblem "
+            f"or TwoPhaseParams"
             f" (got {type(problem).__name__})"
         )
     guess = getattr(module, "INITIAL_GUESS", None)
@@ -120,6 +122,7 @@ def load_scene(spec: str) -> Scene:
         defaults=dict(getattr(module, "DEFAULTS", {})),
         initial_guess=guess,
         test_options=dict(getattr(module, "TEST_OPTIONS", {})),
+        module=module,
     )
 
 

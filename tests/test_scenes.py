@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from ngcontact.drivers import RunOptions, run_scene
+from ngcontact.problems import ParabolicProblem
 from ngcontact.scenes import list_scenes, load_scene
 from ngcontact.twophase import TwoPhaseParams, run_h2
 
@@ -14,6 +15,8 @@ def test_scene_runs_in_test_mode(name):
         run = run_h2(scene.problem, **scene.test_options)
         assert run.completed and not run.log and run.rows[-1].gas_end_m > 0
         return
+    if isinstance(scene.problem, ParabolicProblem):
+        pytest.skip("time-dependent scene: run by tests/test_parabolic.py")
     opts = RunOptions.for_scene(scene, **scene.test_options)
     res = run_scene(scene, opts)
     assert res.converged, res.failures

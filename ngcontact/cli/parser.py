@@ -126,6 +126,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dt-years", type=float, dest="dt_years", help="two-phase scenes: time step in years (default 5000)")
     r.add_argument("--t-final-years", type=float, dest="t_final_years",
                    help="two-phase scenes: final time in years (default 1e6)")
+    r.add_argument("--dt", type=float, help="time-dependent scenes: time step (default: the scene's, 1e-3)")
+    r.add_argument("--t-final", type=float, dest="t_final", help="time-dependent scenes: final time T")
+    r.add_argument("--adaptive-dt", action="store_true", dest="adaptive_dt",
+                   help="time-dependent scenes: time steps balancing the temporal and spatial estimators")
+    r.add_argument("--level", type=int, help="time-dependent scenes: uniform refinements of the scene's mesh")
+    r.add_argument("--maxh", type=float, help="time-dependent scenes: mesh size of the scene's (netgen) domain")
+    r.add_argument("--vtk-every", type=int, dest="vtk_every", metavar="K",
+                   help="time-dependent scenes: solution_n*.vtu every K-th step and solution.pvd")
     r.add_argument("-v", "--verbose", action="store_true", help="print every Newton iteration")
     r.add_argument("-q", "--quiet", action="store_true",
                    help="no per-level progress: only the final table, the stop reason and the output paths")

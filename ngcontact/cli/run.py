@@ -143,9 +143,19 @@ def cmd_run(args, argv) -> int:
     from .twophase import check_membrane_flags, cmd_run_twophase
 
     scene = load_scene(args.scene)
+    from ..problems import ParabolicProblem
+
     if isinstance(scene.problem, TwoPhaseParams):  # water-hydrogen flow: its own time loop and outputs
         return cmd_run_twophase(scene, args, argv)
+    if isinstance(scene.problem, ParabolicProblem):
+        from .parabolic import cmd_run_parabolic
+
+        return cmd_run_parabolic(scene, args, argv)
     check_membrane_flags(args)
+    time_flags = [f for f, v in (("--dt", args.dt), ("--t-final", args.t_final), ("--adaptive-dt", args.adaptive_dt),
+                                 ("--level", args.level), ("--maxh", args.maxh), ("--vtk-every", args.vtk_every)) if v]
+    if time_flags:
+        raise UsageError(f"option(s) {', '.join(time_flags)} need a time-dependent scene ({scene.name} is stationary)")
     options, budget = _run_options(scene, args)
     out = args.out if args.out is not None else (f"results/runs/{scene.name}-{options.disc}-p{options.order}"
                                                  + ("-adaptive" if options.adaptive else ""))

@@ -3,6 +3,7 @@ from .base import (BoundaryOrder, ContactProblem, ExactSolution, Problem, Proble
                    data_fields)
 from .membranes import TwoMembraneProblem
 from .obstacle import ObstacleProblem
+from .parabolic import ParabolicProblem, check_initial_on_points
 
-__all__ = ["BoundaryOrder", "ContactProblem", "ExactSolution", "ObstacleProblem", "Problem", "ProblemDataError",
-           "TwoMembraneProblem", "check_data_on_points", "data_fields"]
+__all__ = ["BoundaryOrder", "ContactProblem", "ExactSolution", "ObstacleProblem", "ParabolicProblem", "Problem", "ProblemDataError",
+           "TwoMembraneProblem", "check_data_on_points", "check_initial_on_points", "data_fields"]

@@ -1,0 +1,168 @@
+"""The parabolic two-membrane problem: data checks, backward Euler steps, scenes, the manufactured solution,
+factorization reuse across steps, the space-time bound."""
+import json
+import math
+
+import numpy as np
+import pytest
+from ngsolve import Parameter
+
+from ngcontact import CrissCrossSquare, TwoMembraneProblem
+from ngcontact.problems import ParabolicProblem, ProblemDataError
+from ngcontact.scenes import load_scene
+from ngcontact.timestepping.driver import ParabolicOptions, run_parabolic
+from ngcontact.timestepping.euler import BackwardEuler
+from ngcontact.timestepping.run import run_parabolic_scene, write_parabolic_run
+
+
+def _stat(**kw):
+    return TwoMembraneProblem(domain=CrissCrossSquare(n0=2), f1=-1.0, f2=1.0, **kw)
+
+
+# ------------------------------------------------------------------ validation
+@pytest.mark.parametrize("kw, words", [
+    (dict(t_final=-1.0), ["t_final", "-1.0"]),
+    (dict(t_final=0.0), ["t_final", "0.0"]),
+    (dict(u0=(1.0,)), ["u0", "(1.0,)"]),
+    (dict(u0=(0.0, "a")), ["u0[1]", "str"]),
+    (dict(time=0.3), ["time", "float"]),
+])
+def test_parabolic_problem_errors_name_field_and_value(kw, words):
+    with pytest.raises(ProblemDataError) as e:
+        ParabolicProblem(_stat(), **kw)
+    for w in words:
+        assert w in str(e.value)
+
+
+def test_initial_order_checked_on_the_nodes():
+    P = ParabolicProblem(_stat(), u0=(0.0, 0.1), t_final=1.0)
+    with pytest.raises(ProblemDataError, match=r"u1\^0 < u2\^0.*-1.000e-01"):
+        BackwardEuler(P, P.domain.mesh(0))
+
+
+def test_time_dependent_dirichlet_data_rejected():
+    t = Parameter(0.0)
+    P = ParabolicProblem(_stat(g1=1.0 + t), u0=(1.0, 0.0), t_final=1.0, time=t)
+    with pytest.raises(ProblemDataError, match="g1 depends on the time parameter"):
+        BackwardEuler(P, P.domain.mesh(0))
+
+
+@pytest.mark.parametrize("kw, words", [(dict(dt=-1), ["dt", "-1"]), (dict(newton="x"), ["newton", "'x'"]),
+                                       (dict(t_final=0), ["t_final", "0"])])
+def test_options_errors(kw, words):
+    with pytest.raises(ValueError) as e:
+        ParabolicOptions(**kw)
+    for w in words:
+        assert w in str(e.value)
+
+
+# ------------------------------------------------------------------ the manufactured solution
+def test_manufactured_solution_solves_the_pde_and_complementarity():
+    """Finite differences (independent of the symbolic Diff that built f) of the exact solution."""
+    sc = load_scene("parabolic_manufactured")
+    P = sc.problem
+    ex, st, mesh = P.exact, P.stationary, P.domain.mesh(2)
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(0.05, 0.95, size=(40, 2))
+    h, k = 1e-4, 1e-5
+
+    def val(cf, px, py, t):
+        P.time.Set(t)
+        return cf(mesh(px, py))
+
+    worst = 0.0
+    for t in (0.1, 0.3):
+        for px, py in pts:
+            lam = val(ex.lam, px, py, t)
+            gap = val(ex.u1, px, py, t) - val(ex.u2, px, py, t)
+            assert gap >= -1e-14 and lam >= 0 and abs(gap * lam) < 1e-14
+            for u, f, s in ((ex.u1, st.f1, 1), (ex.u2, st.f2, -1)):
+                dt_u = (val(u, px, py, t + k) - val(u, px, py, t - k)) / (2 * k)
+                lap = (val(u, px + h, py, t) + val(u, px - h, py, t) + val(u, px, py + h, t) + val(u, px, py - h, t)
+                       - 4 * val(u, px, py, t)) / h ** 2
+                worst = max(worst, abs(dt_u - lap - s * lam - val(f, px, py, t)))
+    assert worst < 1e-4  # FD truncation O(h^2 u'''') + rounding O(eps/h^2)
+    assert (np.array([val(ex.lam, px, py, 0.3) for px, py in pts]) > 0).any()  # a contact zone exists
+
+
+# ------------------------------------------------------------------ steps, reuse, bound
+def test_factorizations_reused_across_steps():
+    sc = load_scene("parabolic_disk")
+    r = run_parabolic(sc.problem, sc.problem.domain.mesh(0), ParabolicOptions(dt=0.02))
+    fact = sum(row["factorizations"] for row in r.rows)
+    newton = sum(row["newton_its"] for row in r.rows)
+    assert len(r.rows) == 15 and r.converged
+    assert fact <= 3 < newton  # one factorization of E, PCG for the later active sets
+    assert r.summary["factorizations_total"] == fact
+
+
+def test_disk_contact_onset_and_stationary_limit():
+    sc = load_scene("parabolic_disk")
+    r, _, _ = run_parabolic_scene(sc, dict(sc.test_options))
+    s = r.summary
+    assert 0.1 < s["onset_disk"] < 0.2
+    assert all(row["gap_min"] >= -1e-12 for row in r.rows)
+    # u_h(t) approaches the stationary discrete solution: at T = 0.3 the remaining transient is below the
+    # stationary discretization error, and the distance to the exact stationary solution at most their sum
+    assert s["dist_stationary_discrete_T"] < s["err_stationary_discrete"]
+    assert s["dist_stationary_T"] <= s["err_stationary_discrete"] + s["dist_stationary_discrete_T"] + 1e-12
+    assert s["dist_stationary_T"] > s["err_stationary_discrete"]  # t = 0.3 is not yet the steady state
+
+
+def test_space_time_bound_on_manufactured_solution(tmp_path):
+    sc = load_scene("parabolic_manufactured")
+    r, opts, mesh_opts = run_parabolic_scene(sc, dict(dt=0.05, t_final=0.1, level=0, estimate=True))
+    s = r.summary
+    assert s["bound_proven"], s["bound_not_proven_because"]
+    assert s["eta_st"] >= s["err_spacetime"] > 0
+    assert s["i_eff"] == pytest.approx(s["eta_st"] / s["err_spacetime"])
+    path = write_parabolic_run(tmp_path / "run", sc, r, opts, mesh_opts, plots=False)
+    summ = json.loads((path / "summary.json").read_text())
+    assert summ["steps"] == 2 and math.isclose(summ["eta_st"], s["eta_st"])
+    assert (path / "steps.csv").read_text().count("\n") == 3
+
+
+@pytest.mark.parametrize("newton, cfun", [("inexact", "min"), pytest.param("adaptive", "fb", marks=pytest.mark.slow)])
+def test_rings_short_run_krylov(newton, cfun):
+    sc = load_scene("parabolic_rings")
+    r, _, _ = run_parabolic_scene(sc, dict(sc.test_options, t_final=0.03, newton=newton, cfun=cfun))
+    assert r.converged and len(r.rows) == 3
+    assert r.summary["gmres_total"] > 0
+    assert r.rows[-1]["active_disk"] > 0 and r.rows[-1]["active_ring"] == 0
+
+
+@pytest.mark.slow
+def test_adaptive_dt_takes_fewer_steps():
+    sc = load_scene("parabolic_disk")
+    opts = ParabolicOptions(dt=0.01, t_final=0.3, adaptive_dt=True)
+    r = run_parabolic(sc.problem, sc.problem.domain.mesh(0), opts)
+    assert r.converged and abs(r.summary["t_final"] - 0.3) < 1e-12
+    assert len(r.rows) < 30
+
+
+# ------------------------------------------------------------------ command line
+def test_cli_time_dependent_run(tmp_path, capsys):
+    from ngcontact.cli import main
+
+    out = tmp_path / "run"
+    assert main(["run", "parabolic_disk", "--test", "--t-final", "0.1", "-q", "--vtk-every", "2",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "5 steps to t = 0.1" in text
+    for name in ("steps.csv", "summary.json", "contact_spacetime.csv", "solution.pvd", "contact_area.png",
+                 "contact_spacetime.png", "estimators_t.png", "iterations_t.png"):
+        assert (out / name).is_file(), name
+    assert (out / "solution.pvd").read_text().count("<DataSet") == 3  # steps 2, 4 and the last
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["run", "parabolic_disk", "--dt", "-1"], "option --dt must be > 0, got -1.0"),
+    (["run", "parabolic_disk", "--levels", "2"], "--levels do not apply to the time-dependent scene"),
+    (["run", "disk", "--dt", "0.1"], "--dt need a time-dependent scene"),
+])
+def test_cli_time_dependent_usage_errors(args, msg, capsys, tmp_path):
+    from ngcontact.cli import main
+
+    assert main([*args, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert msg in err and len(err.strip().splitlines()) == 1
