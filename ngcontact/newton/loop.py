@@ -124,7 +124,6 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     if history[-1].res <= options.tol and certified("converged"):
         return result(True, "converged", 0)
     session = guard.session = linear.start(system, estimates)
-    guard.cycling(0, active)
     reason = f"maximum number of iterations ({options.maxit}) reached"
     for k in range(1, options.maxit + 1):
         t0 = time.perf_counter()
@@ -156,7 +155,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
                 callback(rec)
             reason = f"non-finite residual at iteration {k}"
             break
-        cycled = None if line_search or failed else guard.cycling(k, active)
+        cycled = None if line_search or failed else guard.cycling(k, active, rec.res)
         trouble = "stall" if failed else ("cycling" if cycled is not None else None)
         if trouble:
             code = guard.next_remedy(trouble)

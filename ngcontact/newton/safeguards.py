@@ -1,7 +1,10 @@
 """Safeguards of the Newton loop: cycling of Newton-min and stalling of Newton-FB, detected and remedied.
 
-* **Cycling** (Newton-min): the active set {w g <= y} of iterate k equals the one of an iterate
-  j <= k - 2 and differs from that of k - 1, so the iteration has come back to a set it already left.
+* **Cycling** (Newton-min): the active set {w g <= y} of iterate k equals the one of a Newton iterate
+  1 <= j <= k - 2, differs from that of k - 1, and ||Phi|| has not halved since iterate j: with exact
+  solves of a linear system the step from an active set is determined by it, so the iteration repeats
+  itself from there on.  (The initial guess is not a Newton iterate; and a nonlinear system may come
+  back to an active set while converging, which the residual test tells apart.)
   Remedies, in this order: solve the steps with a fresh factorization (an inexact PCG solve with a reused
   factorization can flip a row back and forth, :mod:`ngcontact.algebra.reuse`), then continue with
   Newton-FB and its line search (globally convergent on the merit function).
@@ -30,7 +33,7 @@ class Safeguards:
 
     def __init__(self, session=None):
         self.session = session  # the linear strategy's session (set once started)
-        self.seen: dict = {}  # signature of an active set -> last iteration that had it
+        self.seen: dict = {}  # signature of an active set -> (last iteration that had it, its ||Phi|| / ||F||)
         self.prev: Optional[bytes] = None
         self.used: set = set()
         self.log: list = []
@@ -39,12 +42,13 @@ class Safeguards:
     def signature(active: np.ndarray) -> bytes:
         return np.packbits(active).tobytes()
 
-    def cycling(self, k: int, active: np.ndarray) -> Optional[int]:
-        """The earlier iteration j <= k - 2 with the same active set as k (and a different one at k - 1), else None."""
+    def cycling(self, k: int, active: np.ndarray, res: float) -> Optional[int]:
+        """The earlier iteration j <= k - 2 with the same active set as k (and a different one at k - 1) and
+        ||Phi|| not halved since, else None (module doc); ``res``: ||Phi(X^k)|| / ||F||."""
         sig = self.signature(active)
-        j = self.seen.get(sig)
-        back = j is not None and j <= k - 2 and sig != self.prev
-        self.seen[sig], self.prev = k, sig
+        j, res_j = self.seen.get(sig, (None, None))
+        back = j is not None and j <= k - 2 and sig != self.prev and res > 0.5 * res_j
+        self.seen[sig], self.prev = (k, res), sig
         return j if back else None
 
     def next_remedy(self, trouble: str) -> Optional[int]:
