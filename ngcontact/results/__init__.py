@@ -43,7 +43,8 @@ err_max_nodal       max over nodes |u_a(x_l) - u_ah(x_l)|           [exact only]
 err_jump            dg: jump seminorm (sum_F eta/h_F ||[u_ah - u_a]||_F^2)^(1/2) [exact]
 newton_its          semismooth Newton iterations on this level
 newton_converged    1 if the Newton mode's stopping criterion was met, else 0: ||Phi||/||F|| <= tol
-                    (direct, gmres, inexact) or eta_lin <= gamma_lin eta_disc (adaptive)
+                    (direct, gmres, inexact) or eta_lin <= gamma_lin eta_disc (adaptive), with the exit
+                    certificate where the rule requires it (see certified)
 res_final           final ||Phi||/||F|| (adaptive: it contains the algebraic residual of the accepted
                     GMRES iterate and can be O(1) when the estimators say the error is discretization-dominated)
 certified           1 if the exit certificate holds at cert_tol (ngcontact.algebra.certificate), else 0
