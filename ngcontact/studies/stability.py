@@ -111,19 +111,14 @@ def _no_contact():
                               exact=ExactSolution(u1=u1, u2=u2, lam=0.0), name="no-contact")
 
 
-def _full_contact():
-    from ..problems import ExactSolution, TwoMembraneProblem
-    from ..domains import CrissCrossSquare
-    from ngsolve import x, y
-    u = 0.1 * (x * x + y)
-    lam = 1 + x / 2 + y / 4  # > 0 up to the boundary
-    return TwoMembraneProblem(domain=CrissCrossSquare(n0=4), f1=-0.2 - lam, f2=-0.2 * 3 + lam, g1=u, g2=u,
-                              mu1=1.0, mu2=3.0, exact=ExactSolution(u1=u, u2=u, lam=lam), name="full-contact")
+def _scene_problem(name):
+    def build():
+        from ..scenes import load_scene
+        return load_scene(name).problem
+    return build
 
 
-def _ex9():
-    from ..scenes import load_scene
-    return load_scene("ex9_obstacle").problem
+_ex9 = _scene_problem("ex9_obstacle")
 
 
 def _cases() -> list:
@@ -148,8 +143,11 @@ def _cases() -> list:
         cases.append(Case(f"offcentre-p2-{cfun}-tension1e9", "tension scale (u fixed)", _scaled(off, tension=1e9),
                           dict(order=2, levels=3, cfun=cfun), baseline=f"offcentre-p2-{cfun}", tension=1e9))
         cases.append(Case(f"no-contact-p2-{cfun}", "no contact", _no_contact, dict(order=2, levels=3, cfun=cfun)))
-        cases.append(Case(f"full-contact-p2-{cfun}", "full contact (lam > 0 on the boundary)", _full_contact,
-                          dict(order=2, levels=3, cfun=cfun)))
+        for p in (2, 3):
+            cases.append(Case(f"full-contact-p{p}-{cfun}", "full contact (lam > 0 on the boundary)",
+                              _scene_problem("full_contact"), dict(order=p, levels=4, cfun=cfun)))
+            cases.append(Case(f"obstacle-boundary-p{p}-{cfun}", "obstacle, contact set touching the boundary",
+                              _scene_problem("obstacle_boundary"), dict(order=p, levels=4, cfun=cfun)))
         cases.append(Case(f"boundary-disk-p2-{cfun}", "contact touching the boundary",
                           _disk(centre=(0.2, 0.5), R=0.3, N=3, M=2, A=2.0, lam_r3=False), dict(order=2, levels=3, cfun=cfun)))
         for p in (2, 3, 4):
@@ -184,7 +182,7 @@ class Outcome:
 
 def run_case(case: Case, estimate: bool = True) -> Outcome:
     """One case through the level driver (one NGSolve thread), with the failure modes kept apart;
-    ``estimate``: also the a posteriori estimate (I_eff) for P1 and P2 (not in the fast subset)."""
+    ``estimate``: also the a posteriori estimate (I_eff) for P1 to P3 (not in the fast subset)."""
     from ..drivers import RunOptions, run_scene
     from ..problems import ProblemDataError
     from ..scenes import Scene
@@ -193,7 +191,7 @@ def run_case(case: Case, estimate: bool = True) -> Outcome:
     try:
         scene = Scene(case.name, None, case.problem())
         opts = dict(case.options)
-        if estimate and not case.quick and opts.get("order", 1) <= 2 and "newton_stop" not in opts:
+        if estimate and not case.quick and opts.get("order", 1) <= 3 and "newton_stop" not in opts:
             opts["estimate"] = True
         result = run_scene(scene, RunOptions.for_scene(scene, **opts), threads=1)
     except ProblemDataError as err:
@@ -260,7 +258,7 @@ def report(outcomes: list, verdicts: list, seconds: float) -> str:
              "levels (ngcontact/algebra/certificate.py).  Check: scaled copies must reproduce their baseline "
              f"(errors within {SCALE_RTOL:g} relative after unscaling), other cases must converge (last energy "
              f"error <= {DECAY} x the previous).  Newton its: per level.  Safeguards: Newton-loop remedies taken "
-             "(ngcontact/newton/safeguards.py).  I_eff = eta / err_energy per level, FEM P1 and P2 with the residual "
+             "(ngcontact/newton/safeguards.py).  I_eff = eta / err_energy per level, FEM P1 to P3 with the residual "
              "stop (equilibrated-flux estimator, guaranteed: >= 1).", "",
              "| case | group | outcome | Newton its | safeguards | certificate | err_energy (finest) | I_eff (per level) | check | rule |",
              "|---|---|---|---|---|---|---|---|---|---|"]
