@@ -64,7 +64,7 @@ fem-study: $(FEM_RUNS)
 
 results/fem/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --order $(subst p,,$(word 2,$(subst -, ,$*))) \
-	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@.part && mv $@.part $@
+	  --levels 5 --start $(word 3,$(subst -, ,$*)) --no-vtk -q --out $@.part && rm -rf $@ && mv $@.part $@
 
 ## constraints-study: contact nodes whose Lagrange basis functions have no negative integral (--constraints
 ## nodal, the default) against the equispaced lattice of [CAMWA21] (--constraints equispaced), P4: tests 1 and 2
@@ -86,7 +86,7 @@ results/constraints/runs/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(call cons_word,1,$*) --disc $(call cons_word,2,$*) \
 	  --order $(subst p,,$(call cons_word,3,$*)) --constraints $(call cons_word,4,$*) \
 	  $(if $(filter estimate,$(call cons_word,5,$*)),--estimate) $(if $(filter cold,$(call cons_word,5,$*)),--start cold) \
-	  --levels $(if $(call cons_word,5,$*)$(filter-out fem,$(call cons_word,2,$*)),4,5) --no-vtk --no-plots -q --out $@.part && mv $@.part $@
+	  --levels $(if $(call cons_word,5,$*)$(filter-out fem,$(call cons_word,2,$*)),4,5) --no-vtk --no-plots -q --out $@.part && rm -rf $@ && mv $@.part $@
 
 ## compare: FEM vs HHO (SC / no SC) vs SIPG / NIPG on [CAMWA21] tests 1, 2,
 ## p = 1..4, T0..T4 (nested start), plus cold-start Newton counts of FEM and HHO
@@ -103,7 +103,7 @@ cmp_levels = $(if $(filter nipg-p3 nipg-p4,$(word 2,$(subst -, ,$(1)))-$(word 3,
 results/compare/runs/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst -, ,$*)) --disc $(word 2,$(subst -, ,$*)) \
 	  --order $(subst p,,$(word 3,$(subst -, ,$*))) --start $(word 4,$(subst -, ,$*)) \
-	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels $(call cmp_levels,$*) --no-vtk --no-plots -q --out $@.part && mv $@.part $@
+	  $(if $(word 5,$(subst -, ,$*)),--no-condense) --levels $(call cmp_levels,$*) --no-vtk --no-plots -q --out $@.part && rm -rf $@ && mv $@.part $@
 
 ## inexact-study: direct / gmres / inexact / adaptive inexact semismooth Newton (GMRES + ILU) on the
 ## [JSC20] disk test, P1 and P2, 2k..35k elements, (gamma_alg, gamma_lin) table -> results/inexact/TABLES.md
@@ -120,7 +120,7 @@ SWEEP_RUNS := $(foreach s,lshape test1 disk disk_fitted point_load,$(foreach m,u
 sweep: $(SWEEP_RUNS)
 
 results/sweep/runs/%: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.sweep run $* $@.part && mv $@.part $@
+	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.sweep run $* $@.part && rm -rf $@ && mv $@.part $@
 
 report: $(STAMP)
 	$(PY) -m ngcontact.studies.sweep report results/sweep/runs results/REPORT.md results/report
@@ -150,7 +150,7 @@ estimator-study: $(EST_RUNS)
 
 results/estimators/runs/%: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact run $(word 1,$(subst ., ,$*)) --order $(subst p,,$(word 2,$(subst ., ,$*))) \
-	  --levels $(subst L,,$(word 3,$(subst ., ,$*))) --start cold --estimate --no-vtk --no-plots -q --out $@.part && mv $@.part $@
+	  --levels $(subst L,,$(word 3,$(subst ., ,$*))) --start cold --estimate --no-vtk --no-plots -q --out $@.part && rm -rf $@ && mv $@.part $@
 
 ## boundary-contact: estimator with contact on the Dirichlet boundary: err, eta, I_eff before/after the
 ## residual multiplier, P2/P3, T0..T4 (full_contact, obstacle_boundary) -> results/stability/BOUNDARY_CONTACT.md
