@@ -379,7 +379,7 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
     if p > 1 and multiplier == "shape":
         lam_rule = patch_solver(dv, q).shaped_rule_order(bonus + 1)
         lam, vertex_values = ShapedContactMultiplier(dv, sv.y, sv.gfs["lam"], rule_order=lam_rule,
-                                                     boundary_shape=residual_multiplier(sv) if boundary else None
+                                                     boundary_shape=(lambda: residual_multiplier(sv)) if boundary else None
                                                      ).terms(moments)
         lam_term, lam_order = None, p
     elif p == 1 or multiplier in ("p1", "contact"):

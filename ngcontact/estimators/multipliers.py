@@ -248,7 +248,8 @@ class ShapedContactMultiplier:
     rule_order : int, optional
         order of the triangle rule of the patch sources (:meth:`.patches.PatchSolver.shaped_rule_order`),
         used for (psi_a phi, 1) too, so that the patch data are compatible to round-off.
-    boundary_shape : CoefficientFunction, optional
+    boundary_shape : CoefficientFunction or a function returning one, optional
+        (a function: built only when the band below is not empty)
         the shape on the contact elements connected to a Dirichlet boundary vertex of a contact element
         (:func:`.boundary.contact_band`), where the dual-basis lam_h, which vanishes at the boundary
         nodes, is polluted (:func:`.boundary.residual_multiplier`); the boundary vertices then take
@@ -263,12 +264,15 @@ class ShapedContactMultiplier:
         contact = GridFunction(L2(mesh, order=0), name="contact_elements")
         contact.vec.FV().NumPy()[:] = self.const.contact
         self._fixed = np.zeros(mesh.nv, bool)  # vertices with s_a = 1
-        if boundary_shape is None:
+        band = None if boundary_shape is None else contact_band(dv, self.const.contact)
+        if band is None or not band.any():
             self.shape = contact * IfPos(lam_h, lam_h, 0.0)
         else:
+            shape = boundary_shape() if callable(boundary_shape) else boundary_shape
             layer = GridFunction(L2(mesh, order=0), name="boundary_band")
-            layer.vec.FV().NumPy()[:] = contact_band(dv, self.const.contact)
-            self.shape = contact * IfPos(layer, IfPos(boundary_shape, boundary_shape, 0.0), IfPos(lam_h, lam_h, 0.0))
+            layer.vec.FV().NumPy()[:] = band
+            self.shape = contact * IfPos(layer, IfPos(shape, shape, 0.0), IfPos(lam_h, lam_h, 0.0))
+        if band is not None:
             self._fixed = boundary_vertices(dv)
         rule = data_rules(dv)["mass"] if rule_order is None else {TRIG: IntegrationRule(TRIG, int(rule_order))}
         with TaskManager():
