@@ -126,7 +126,7 @@ report: $(STAMP)
 	$(PY) -m ngcontact.studies.sweep report results/sweep/runs results/REPORT.md results/report
 
 ## stability: the stability suite (stiff and extreme cases, one rule: converged with a valid certificate,
-##            or a named reason; ngcontact/studies/stability.py) -> results/STABILITY.md (~10 min)
+##            or a named reason; ngcontact/studies/stability.py) -> results/STABILITY.md (~4 min)
 .PHONY: stability
 stability: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.stability results/STABILITY.md
