@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["StopOptions", "ResidualStop", "BalancedStop", "AdaptiveStop", "Reference", "linearization_defect",
+__all__ = ["StopOptions", "StopRule", "EstimatorStop", "ResidualStop", "BalancedStop", "AdaptiveStop", "Reference", "linearization_defect",
            "stop_linear", "stop_newton"]
 
 RULES = ("residual", "balanced", "adaptive")
@@ -99,8 +99,8 @@ def stop_newton(eta_lin: float, eta_disc: float, gamma_lin: float) -> bool:
     return eta_lin <= gamma_lin * eta_disc
 
 
-class ResidualStop:
-    """||Phi(X^k)|| / ||F|| <= tol."""
+class StopRule:
+    """What every stopping rule provides; the defaults are those of the residual test."""
 
     def on_difference(self, m: int):
         """The rule for the difference w = x[:m] - x[m:] (:mod:`.decoupled`)."""
@@ -111,7 +111,8 @@ class ResidualStop:
         return self
 
     def certificate_tol(self, options) -> float:
-        """Tolerance of the exit certificate (:mod:`.certificate`) when this rule's own test stopped the loop."""
+        """Tolerance of the exit certificate (:mod:`ngcontact.algebra.certificate`) when this rule's own test
+        stopped the loop."""
         return options.certificate_tol
 
     def accepted(self, x, y):
@@ -119,10 +120,22 @@ class ResidualStop:
         return x, y
 
     def measure(self, rec, system, x, y, r) -> None:
-        pass
+        """Fill what the rule needs into the iteration record ``rec``."""
 
     def check(self, rec, tol: float):
         return "converged" if rec.res <= tol else None
+
+
+class EstimatorStop(StopRule):
+    """A rule whose accepted iterate the a posteriori estimators certify: the exit certificate is recorded,
+    not required."""
+
+    def certificate_tol(self, options) -> float:
+        return float("inf")
+
+
+class ResidualStop(StopRule):
+    """||Phi(X^k)|| / ||F|| <= tol."""
 
 
 @dataclass(frozen=True)
@@ -155,7 +168,7 @@ def linearization_defect(system, x: np.ndarray, y: np.ndarray, r=None) -> float:
 
 
 @dataclass(frozen=True)
-class BalancedStop:
+class BalancedStop(StopRule):
     """Residual test, or eps_lin <= gamma_balance eps_disc against ``reference`` (module doc)."""
 
     reference: Reference
@@ -196,26 +209,10 @@ class BalancedStop:
 
 
 @dataclass(frozen=True)
-class AdaptiveStop:
+class AdaptiveStop(EstimatorStop):
     """[JSC20]: eta_lin <= gamma_lin eta_disc (estimators recorded by the Krylov strategy), or the residual test."""
 
     gamma_lin: float = 0.3
-
-    def on_difference(self, m: int):
-        return self
-
-    def rescaled(self, s: float):
-        return self
-
-    def certificate_tol(self, options) -> float:
-        """Not required: the estimators' guaranteed bound certifies the accepted iterate (recorded only)."""
-        return float("inf")
-
-    def accepted(self, x, y):
-        return x, y
-
-    def measure(self, rec, system, x, y, r) -> None:
-        pass
 
     def check(self, rec, tol: float):
         if stop_newton(rec.eta_lin, rec.eta_disc, self.gamma_lin):

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..newton.stopping import EstimatorStop
 from .fv import NV, TwoPhaseFV, TwoPhaseStep, face_fluxes
 
 __all__ = ["TwoPhaseEstimator", "Components", "AdaptiveStepStop", "COMPONENT_NAMES"]
@@ -193,7 +194,7 @@ class TwoPhaseEstimator:
         return bool(np.all(comp.eta_lin <= self.gamma_lin * np.maximum(comp.eta_sp, comp.eta_tm)))
 
 
-class AdaptiveStepStop:
+class AdaptiveStepStop(EstimatorStop):
     """Newton stopping rule of the loop (:mod:`ngcontact.newton.stopping` interface): the [CG20] criterion on
     the components of the accepted iterate (``estimator.last``) at an iterate with S <= 1 + ``tol_feasible``
     (otherwise one more step; the run uses 1e-14 for Newton-min, whose liquid rows are exact, and the
@@ -202,16 +203,6 @@ class AdaptiveStepStop:
     def __init__(self, estimator: TwoPhaseEstimator, tol_feasible: float = 1e-14):
         self.estimator, self.tol_feasible = estimator, tol_feasible
         self.feasible = False
-
-    def rescaled(self, s: float):
-        return self
-
-    def certificate_tol(self, options) -> float:
-        """The estimators certify the accepted iterate (its pair is recorded, not required)."""
-        return float("inf")
-
-    def accepted(self, x, y):
-        return x, y
 
     def measure(self, rec, system, x, y, r) -> None:
         a, _ = system.pair(x, y)
