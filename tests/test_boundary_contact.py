@@ -2,13 +2,13 @@
 (ngcontact/estimators/boundary.py; measured table: results/stability/BOUNDARY_CONTACT.md)."""
 import numpy as np
 import pytest
-from ngsolve import CoefficientFunction, x, y
+from ngsolve import CoefficientFunction, x
 
 from ngcontact.drivers import RunOptions
 from ngcontact.drivers.level import solve_level
 from ngcontact.estimators import EstimatorOptions, estimate
 from ngcontact.estimators.boundary import boundary_vertices, contact_band, residual_multiplier, vertex_values
-from ngcontact.estimators.view import DiscretizationView, SolutionView
+from ngcontact.estimators.view import SolutionView
 from ngcontact.scenes import load_scene
 
 

@@ -83,7 +83,7 @@ class BrokenLagrange:
 
         # reference Lagrange basis: phi_i = sum_j C[j, i] m_j, monomials m_j = xi^a eta^b
         self.lat = lattice(order)
-        self.nc = nc = len(self.lat)
+        self.nc = len(self.lat)
         self.ref_nodes = reference_nodes(order, node_set)[:, :2]
         self.exponents = np.array([(a, b) for a in range(order + 1) for b in range(order + 1 - a)])
         self._C = np.linalg.inv(self._monomials(self.ref_nodes))

@@ -160,7 +160,6 @@ class FEMDiscretization(Discretization):
 
     def prolongate(self, previous: "FEMDiscretization", x, y):
         """Nested iteration: interpolate a coarser level's solution at this level's nodes."""
-        ni = self.n_interior
         pts = self.nodes.coords[self.interior]
         names = list(self.problem.field_names)
         if self.order == 1 and previous.order == 1:  # nested P1 meshes: no point search needed

@@ -79,7 +79,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     # nondimensionalize: solve for (x, y) / s with the data / s (s a power of 2: the iterates are those of the
     # unscaled data, bit for bit, and no square under- or overflows for data from 1e-300 to 1e+300)
     s = system.data_scale()
-    original, system = system, system.rescaled(s)
+    system = system.rescaled(s)
     linear, stop = _rescaled_strategy(linear, s), stop.rescaled(s)
     scale = system.scale()
     x, y = np.array(x0, dtype=float) / s, np.array(y0, dtype=float) / s

@@ -15,7 +15,6 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
 
 from ..rates import fitted_rate
 from ..results.files import atomic_write

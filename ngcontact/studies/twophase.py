@@ -155,7 +155,7 @@ def _report(out, solver, gam, reg, ref, quick):
     (out / "runs.csv").write_text(buf.getvalue())
     # plots of the reference run and of the adaptive run's estimators
     for name in ("min-direct", "min-adaptive"):
-        made = write_plots(solver[name]["files"], lambda n, name=name: out / f"{name}_{n}")
+        write_plots(solver[name]["files"], lambda n, name=name: out / f"{name}_{n}")
     fig, axs = plt.subplots(1, 2, figsize=(11, 4))
     for (n, dt), r in ref.items():
         t = [x.t_years for x in r["run"].rows]

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..newton.stopping import EstimatorStop
-from .fv import NV, TwoPhaseFV, TwoPhaseStep, face_fluxes
+from .fv import NV, TwoPhaseFV, TwoPhaseStep
 
 __all__ = ["TwoPhaseEstimator", "Components", "AdaptiveStepStop", "COMPONENT_NAMES"]
 
@@ -154,7 +154,7 @@ class TwoPhaseEstimator:
     # --- the components
     def components(self, x_lin, dx_i, dx_j) -> Components:
         sys_, d = self.system, self.disc
-        u, v = x_lin + dx_i, x_lin + dx_j
+        u = x_lin + dx_i
         f_u, _, _ = self._face_values(u)
         flin_u, Alin_u = self._flux_lin(x_lin, dx_i)
         flin_v, Alin_v = self._flux_lin(x_lin, dx_j)
