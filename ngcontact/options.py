@@ -26,14 +26,20 @@ from .discretizations import DISCRETIZATIONS
 from .discretizations.nodesets import CONSTRAINTS, NODAL_CONSTRAINTS
 from .estimators import EstimatorOptions
 from .marking import check_marking
-from .newton import DirectSolve, KrylovSolve, NewtonOptions, StopOptions
+from .newton import DirectSolve, KrylovSolve, MultigridSolve, NewtonOptions, StopOptions
 from .newton.base import option_error
 
-__all__ = ["RunOptions", "AdaptiveOptions", "NEWTON_MODES"]
+__all__ = ["RunOptions", "AdaptiveOptions", "NEWTON_MODES", "MULTIGRID_NEWTON", "GMRES_NEWTON"]
 
 #: Newton linear solves: direct (sparse factorizations), gmres (GMRES + ILU to 2e-12: the "exact" mode of
-#: [JSC20]), inexact (GMRES with a forcing term), adaptive (GMRES stopped by the estimators, [JSC20])
-NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive")
+#: [JSC20]), inexact (GMRES with a forcing term), adaptive (GMRES stopped by the estimators, [JSC20]),
+#: multigrid (CG + truncated multigrid to a tenth of the Newton tolerance), multigrid-inexact (the same
+#: with a forcing term; both need nested P1 levels, :mod:`ngcontact.newton.multigrid`)
+NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive", "multigrid", "multigrid-inexact")
+#: the modes of :class:`~ngcontact.newton.MultigridSolve`
+MULTIGRID_NEWTON = {"multigrid": "exact", "multigrid-inexact": "inexact"}
+#: the modes that solve with GMRES (and need an estimable discretization)
+GMRES_NEWTON = ("gmres", "inexact", "adaptive")
 
 
 def _positive_or_none(name, v):
@@ -126,11 +132,13 @@ class RunOptions:
             bad("estimate", f"False for disc {self.disc!r} (estimators exist for {_estimable()})")
         if self.adaptive and not estimable:
             bad("adaptive", f"False for disc {self.disc!r} (estimators exist for {_estimable()})")
-        if self.newton != "direct" and not estimable:
+        if self.newton in GMRES_NEWTON and not estimable:
             bad("newton", f"'direct' for disc {self.disc!r} (the GMRES modes are implemented for {_estimable()})")
+        if self.newton in MULTIGRID_NEWTON and (self.disc != "fem" or self.order != 1):
+            bad("newton", f"'direct' for disc {self.disc!r} order {self.order} (multigrid: fem order 1 on nested meshes)")
         if self.newton_stop not in ("residual", "balanced"):
             bad("newton_stop", "'residual' or 'balanced'")
-        if self.newton_stop == "balanced" and self.newton != "direct":
+        if self.newton_stop == "balanced" and self.newton in GMRES_NEWTON:
             bad("newton_stop", f"'residual' with newton {self.newton!r} (the GMRES modes have their own stopping rules)")
         if self.decouple and self.disc != "fem":
             raise ValueError(f"option decouple needs disc 'fem' (got disc {self.disc!r})")
@@ -140,10 +148,14 @@ class RunOptions:
         # the option groups: each validates its own fields
         set_ = object.__setattr__
         set_(self, "newton_options", NewtonOptions(cfun=self.cfun, tol=self.tol, maxit=self.maxit))
-        # built also for the direct mode: it validates the GMRES fields, which that mode ignores
-        krylov = KrylovSolve(mode=self.newton if self.newton != "direct" else "inexact", gamma_alg=self.gamma_alg,
+        # built also for the other modes: it validates the GMRES fields, which they ignore
+        krylov = KrylovSolve(mode=self.newton if self.newton in GMRES_NEWTON else "inexact", gamma_alg=self.gamma_alg,
                              nu=self.nu, ilu_drop_tol=self.ilu_drop_tol, ilu_fill=self.ilu_fill)
-        set_(self, "linear", DirectSolve() if self.newton == "direct" else krylov)
+        if self.newton in MULTIGRID_NEWTON:
+            linear = MultigridSolve(mode=MULTIGRID_NEWTON[self.newton], tol=min(self.tol, 0.5))
+        else:
+            linear = DirectSolve() if self.newton == "direct" else krylov
+        set_(self, "linear", linear)
         set_(self, "stop_options", StopOptions(newton_stop="adaptive" if self.newton == "adaptive" else self.newton_stop,
                                                gamma_balance=self.gamma_balance, gamma_lin=self.gamma_lin))
         estimator_options = EstimatorOptions(flux_order=self.flux_order)

@@ -55,8 +55,9 @@ def power_of_two(v: float) -> float:
         return 1.0
     return math.ldexp(1.0, round(math.log2(v)))
 
-#: how a Newton step's reduced system was solved (IterationRecord.linear_path is the index)
-LINEAR_PATHS = ("factor", "pcg", "pcg-failed")
+#: how a Newton step's reduced system was solved (IterationRecord.linear_path is the index): fresh
+#: factorization, PCG with a reused factorization, PCG gave up (then factorized), PCG + truncated multigrid
+LINEAR_PATHS = ("factor", "pcg", "pcg-failed", "multigrid")
 
 
 @dataclass

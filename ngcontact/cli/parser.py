@@ -40,6 +40,7 @@ exit codes:
 environment variables:
   NGCONTACT_THREADS  number of NGSolve threads (default: all cores)
   NGCONTACT_CASES    directory of scene files used instead of the bundled scenes
+  OPENBLAS_NUM_THREADS  OpenBLAS threads (default here: 1; the package's BLAS work is vector operations)
 """
 
 
@@ -86,10 +87,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--decouple", action="store_true",
                    help="two membranes with constant mu1, mu2 (fem): Newton on w = u1 - u2 only, one Poisson solve "
                         "for mu1 u1 + mu2 u2 (the same discrete solution)")
-    r.add_argument("--newton", choices=["direct", "gmres", "inexact", "adaptive"],
+    r.add_argument("--newton", choices=["direct", "gmres", "inexact", "adaptive", "multigrid", "multigrid-inexact"],
                    help="Newton linear solves: direct (sparse factorization, default), gmres (GMRES with ILU to "
                         "||R||/||B|| <= 2e-12), inexact (GMRES with a forcing term), adaptive (GMRES stopped by the "
-                        "estimators); the GMRES modes: fem only")
+                        "estimators); the GMRES modes: fem only; multigrid (CG + truncated geometric multigrid to a "
+                        "tenth of the Newton tolerance), multigrid-inexact (the same with a forcing term): fem P1 "
+                        "on structured nested meshes, the coarsest level is factorized")
     r.add_argument("--gamma-alg", type=float, dest="gamma_alg",
                    help="adaptive: stop GMRES when eta_alg <= GAMMA_ALG max(eta_disc, eta_lin), in (0, 1) (default 0.3)")
     r.add_argument("--gamma-lin", type=float, dest="gamma_lin",

@@ -52,9 +52,9 @@ def _check_solver_options(args, newton: str) -> None:
     gmres = {"ilu_drop_tol": "--ilu-drop", "ilu_fill": "--ilu-fill"}
     adaptive = {"gamma_alg": "--gamma-alg", "gamma_lin": "--gamma-lin", "nu": "--nu"}
     used = [flag for name, flag in gmres.items() if getattr(args, name, None) is not None]
-    if used and newton == "direct":
+    if used and newton not in ("gmres", "inexact", "adaptive"):
         raise UsageError(f"option(s) {', '.join(used)} need --newton gmres, inexact or adaptive "
-                         f"(the direct mode uses no iterative solver)")
+                         f"(the {newton} mode uses no GMRES)")
     used = [flag for name, flag in adaptive.items() if getattr(args, name, None) is not None]
     if used and newton != "adaptive":
         raise UsageError(f"option(s) {', '.join(used)} need --newton adaptive (got --newton {newton})")

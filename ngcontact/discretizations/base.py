@@ -88,6 +88,12 @@ class Discretization(ABC):
     def prolongate(self, previous: "Discretization", x, y):
         """Nested iteration: (x0, y0) on this level from a coarser level's solution (x, y)."""
 
+    def unknown_prolongation(self, previous: "Discretization"):
+        """The sparse matrix P with x = P x_c interpolating the unknowns x_c of the coarser, nested level
+        ``previous`` (the multigrid hierarchy of :mod:`ngcontact.algebra.multigrid`), or None where this
+        discretization does not provide it."""
+        return None
+
     @abstractmethod
     def errors(self, x, y) -> dict:
         """Errors against ``problem.exact`` ({} without an exact solution): at least 'err_energy'."""

@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integrate, InnerProduct, LinearForm, TaskManager,
                      dx, grad)
 
+from ..algebra.multigrid import field_prolongation, p1_prolongation
 from ..algebra.system import ComplementaritySystem
 from ..domains import DIRICHLET
 from ..problems.base import check_data_on_points
@@ -189,6 +190,16 @@ class FEMDiscretization(Discretization):
             y0 = y0[self.interior]
         return self.system.warm_start(x0, y0)  # obstacle rows: projected, first active set from the residual
 
+    def unknown_prolongation(self, previous: "FEMDiscretization"):
+        """Nested P1 interpolation of all fields' interior unknowns from ``previous`` (P1 on the parent
+        table of structured nested meshes, :func:`_parent_p1_values`), or None."""
+        if not (self.order == previous.order == 1 and self.problem.field_names == previous.problem.field_names):
+            return None
+        if _parent_pairs(previous, self) is None:
+            return None
+        P = p1_prolongation(self.mesh.ngc_parents, self.interior, previous.interior, previous.fes.ndof)
+        return field_prolongation(P, len(self.problem.field_names))
+
     # ------------------------------------------------------------ postprocess
     def mass_nodal(self) -> sp.csr_matrix:
         if self._mass is None:
@@ -254,6 +265,16 @@ def _parent_p1_values(previous, fine, values):
     parent table ``fine.mesh.ngc_parents`` of structured domains (``domains._BoxDomain.meshes``),
     or None (no table, or it does not describe these two meshes: checked on the coordinates,
     bitwise).  Cheaper than the coordinate matching of :func:`_nested_p1_values`."""
+    pairs = _parent_pairs(previous, fine)
+    if pairs is None:
+        return None
+    a, b = pairs
+    return 0.5 * (values[:, a] + values[:, b])
+
+
+def _parent_pairs(previous, fine):
+    """(a, b): the coarse parents of ``fine``'s interior nodes in the table ``fine.mesh.ngc_parents``, or None
+    (no table, or it does not describe these two P1 meshes: checked on the coordinates, bitwise)."""
     par = getattr(fine.mesh, "ngc_parents", None)
     if par is None or fine.fes.ndof != fine.mesh.nv or previous.fes.ndof != previous.mesh.nv \
             or par.shape != (fine.mesh.nv, 2) or par.max(initial=0) >= previous.mesh.nv:
@@ -262,7 +283,7 @@ def _parent_p1_values(previous, fine, values):
     P = previous.nodes.coords
     if not np.array_equal(0.5 * (P[a] + P[b]), fine.nodes.coords[fine.interior]):
         return None
-    return 0.5 * (values[:, a] + values[:, b])
+    return a, b
 
 
 def _nested_p1_values(previous, pts, values):

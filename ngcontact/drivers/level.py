@@ -16,6 +16,7 @@ import numpy as np
 from ..discretizations import DISCRETIZATIONS
 from ..estimators import EstimatorOptions, algebraic_flux, estimate, estimate_components
 from ..newton import NewtonOptions, Reference, decoupled_newton, semismooth_newton
+from ..options import GMRES_NEWTON, MULTIGRID_NEWTON
 from ..rates import rates
 
 __all__ = ["RunResult", "LevelOutcome", "LevelEstimator", "solve_level", "newton_iterates", "level_row", "update_rates",
@@ -75,8 +76,11 @@ def newton_solve(disc, x0, y0, options, callback=None, warm: bool = False):
     eps_disc = 2^-p |||x - x0||| (p = the energy rate of every discretization here, HHO's included).
     """
     nopts = options.newton_options
-    if options.newton == "direct":
+    if options.newton in ("direct",) + tuple(MULTIGRID_NEWTON):
         stop = options.stop_options.rule(Reference(np.array(x0, dtype=float), 2.0 ** -options.order) if warm else None)
+        if options.newton != "direct":  # CG + multigrid on the hierarchy of this run's levels
+            linear = replace(options.linear, prolongations=tuple(getattr(disc, "mg_prolongations", ())))
+            return semismooth_newton(disc.system, x0, y0, nopts, callback, linear=linear, stop=stop)
         solve = decoupled_newton if options.decouple else semismooth_newton
         return solve(disc.system, x0, y0, nopts, callback, stop=stop)
     estimator = LevelEstimator(disc, options.estimator_options) if options.newton == "adaptive" else None
@@ -107,6 +111,8 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     disc = Disc(problem, mesh, order=options.order, solver=options.solver, constraints=options.constraints, **kw)
     warm = previous is not None and options.start == "nested"
     t0 = time.perf_counter()
+    if options.newton in MULTIGRID_NEWTON:
+        disc.mg_prolongations = multigrid_hierarchy(disc, previous[0] if previous is not None else None)
     x0, y0 = disc.prolongate(*previous) if warm else disc.initial_guess(initial_guess)
     t1 = time.perf_counter()
     sol = newton_solve(disc, x0, y0, options, callback, warm=warm)
@@ -119,6 +125,16 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
         est = estimate(disc, sol.x, sol.y, options.estimator_options, err_energy=errs.get("err_energy"), errors=False)
     t4 = time.perf_counter()
     return LevelOutcome(disc, sol, errs, comp, est, t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+
+
+def multigrid_hierarchy(disc, coarser) -> tuple:
+    """The prolongations P_1..P_L (coarse to fine) from the coarsest level of the run to ``disc``: those of
+    ``coarser`` and the one from ``coarser`` to ``disc``; () when a link is missing (the multigrid mode then
+    factorizes)."""
+    P = disc.unknown_prolongation(coarser) if coarser is not None else None
+    if P is None:
+        return ()
+    return tuple(getattr(coarser, "mg_prolongations", ())) + (P,)
 
 
 def balance_columns(sol) -> dict:
@@ -154,7 +170,8 @@ def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = 
            **(balance_columns(sol) if options.newton_stop == "balanced" else {}),
            "active_nodes": sol.history[-1].n_active,
            "linear_size": max((r.linear_size for r in sol.history), default=0),
-           **(krylov_columns(sol) if options.newton != "direct" else {}),
+           **(krylov_columns(sol) if options.newton in GMRES_NEWTON else {}),
+           **(multigrid_columns(sol) if options.newton in MULTIGRID_NEWTON else {}),
            **out.complementarity,
            "time_mesh_s": times.pop("time_mesh_s", 0.0), **times,
            "time_assembly_s": disc.time_assembly, "time_prolong_s": out.time_prolong,
@@ -163,6 +180,14 @@ def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = 
            "time_post_s": out.time_post, **est_cols,
            **({"time_estimate_s": out.time_estimate} if out.estimate is not None else {})}
     return row
+
+
+def multigrid_columns(sol) -> dict:
+    """history.csv columns of the multigrid Newton modes."""
+    h = sol.history[1:]
+    return {"cg_its": sum(r.pcg_its for r in h), "mg_levels": max((r.mg_levels for r in h), default=0),
+            "mg_builds": sum(r.mg_rebuilt == 1 for r in h), "mg_updates": sum(r.mg_rebuilt == 2 for r in h),
+            "time_mg_setup_s": sum(r.time_mg_setup for r in h)}
 
 
 def certificate_columns(sol) -> dict:

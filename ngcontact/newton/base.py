@@ -77,7 +77,7 @@ class IterationRecord:
     time_linear: float  # linear solve of the step (as the strategy counts it)
     time_step: float  # whole iteration
     linear_size: int = 0  # unknowns of the linear system actually solved (reduced / condensed)
-    linear_path: int = 0  # index in algebra.reuse.LINEAR_PATHS: 0 factorized, 1 PCG with a reused factorization, 2 PCG gave up
+    linear_path: int = 0  # index in algebra.system.LINEAR_PATHS: 0 factorized, 1 PCG with a reused factorization, 2 PCG gave up, 3 PCG + multigrid
     pcg_its: int = 0  # PCG iterations of this step (also those of a failed attempt)
     eps_lin: float = float("nan")  # balanced stop only: linearization defect (newton.stopping)
     eps_disc: float = float("nan")  # balanced stop only: discretization proxy 2^-p |||x - x_ref|||

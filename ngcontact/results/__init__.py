@@ -65,6 +65,12 @@ linear_size         largest linear system solved in a Newton step (reduced SPD /
                     condensed face system / full system)
 gmres_its           --newton gmres|inexact|adaptive: GMRES iterations, all Newton steps
                     (adaptive: including the nu look-ahead steps of sigma_alg)
+cg_its              --newton multigrid|multigrid-inexact: CG iterations, all Newton steps
+mg_levels           levels of the multigrid V-cycle (0: no hierarchy, every step factorized)
+mg_builds           Newton steps that built the whole hierarchy
+mg_updates          Newton steps that rebuilt only its finest level (few rows changed class; the
+                    other steps reused it unchanged)
+time_mg_setup_s     Galerkin products and coarsest factorizations of those builds
 gmres_max_step      largest number of GMRES iterations in one Newton step
 gmres_first_step    GMRES iterations of the first Newton step
 n_estimates         estimator evaluations inside the Newton loop (adaptive: every nu GMRES its)
@@ -109,7 +115,9 @@ time_cum_s          cumulated over levels 0..j
 newton.csv: one row per (level, time step n if any, iteration k) with the key columns, k, res, res_lin, res_c,
 n_active, n_changed, step, time_linear, time_step, linear_size, linear_path (0 fresh
 factorization, 1 PCG preconditioned by an earlier step's factorization, 2 PCG gave up and
-the step was factorized), pcg_its (see :class:`ngcontact.newton.IterationRecord`); with --newton other than direct also
+the step was factorized, 3 PCG + truncated multigrid), pcg_its (see :class:`ngcontact.newton.IterationRecord`);
+with --newton multigrid|multigrid-inexact also cg_cum, mg_levels, mg_rebuilt, time_mg_setup
+(:class:`ngcontact.newton.MultigridIterationRecord`); with the GMRES modes also
 gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
 3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),
 eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu, ilu_fill_ratio

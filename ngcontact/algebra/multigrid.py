@@ -1,0 +1,170 @@
+r"""Truncated geometric multigrid for the reduced SPD Newton systems.
+
+A Newton step of the contact problem solves A z = b with A = Z^T K Z
+(:meth:`~ngcontact.algebra.system.ComplementaritySystem.linearize`): z holds the unknowns x that
+the step keeps (``keep``), the others are fixed by the active constraints.  Given the nested
+P1 prolongations P_l of the unconstrained unknowns (level l-1 -> level l), the coarse spaces of
+the reduced system are those of K with every fine basis function *truncated* on the unknowns the
+step does not keep (Kornhuber's truncated multigrid, here in Galerkin form):
+
+    P_red = P_L[keep, :]  (coarse unknowns whose truncated function vanishes are dropped),
+    A_{L-1} = P_red^T A P_red,   A_{l-1} = P_l^T A_l P_l  (l < L, rows/columns of dropped
+    coarse unknowns removed level by level),
+
+so every coarse correction is a correction of the reduced problem: it never moves a fixed
+unknown, and near the free boundary the coarse functions see the contact exactly.  The
+V-cycle uses a Chebyshev polynomial in D^{-1} A as pre- and post-smoother (the same polynomial:
+the cycle is a symmetric positive definite operator, a valid CG preconditioner) and a sparse
+Cholesky factorization on the coarsest level.  Everything is sparse products and sparse
+matrix-vector products (no Python loop over unknowns).
+
+:func:`p1_prolongation` builds P_l from the parent table of structured nested meshes; the
+hierarchy of a run is kept by the discretizations (``mg_prolongations``).
+"""
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+from typing import List, Optional, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .linalg import SPDSolver
+
+__all__ = ["Multigrid", "MultigridLevel", "p1_prolongation", "field_prolongation"]
+
+
+def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_interior: np.ndarray,
+                    n_coarse_nodes: int) -> sp.csr_matrix:
+    """Nested P1 interpolation from the coarse interior nodes to the fine interior nodes.
+
+    ``parents``: (fine nodes, 2) -- fine node v is the midpoint of coarse nodes parents[v] (a
+    repeated index: v is that coarse node); ``*_interior``: node numbers of the unknowns.  Coarse
+    boundary nodes carry homogeneous corrections and are left out.
+    """
+    ci = -np.ones(n_coarse_nodes, dtype=np.int64)
+    ci[coarse_interior] = np.arange(len(coarse_interior))
+    nf = len(fine_interior)
+    a, b = ci[parents[fine_interior, 0]], ci[parents[fine_interior, 1]]
+    rows = np.concatenate([np.arange(nf), np.arange(nf)])
+    cols = np.concatenate([a, b])
+    ok = cols >= 0
+    P = sp.csr_matrix((np.full(2 * nf, 0.5)[ok], (rows[ok], cols[ok])), shape=(nf, len(coarse_interior)))
+    P.sum_duplicates()  # a repeated parent: weight 1
+    return P
+
+
+def _used_columns(P: sp.csr_matrix) -> np.ndarray:
+    """Columns of P with a nonzero entry (coarse unknowns whose truncated function survives)."""
+    return np.flatnonzero(np.bincount(P.indices[P.data != 0], minlength=P.shape[1]))
+
+
+def _level(A: sp.csr_matrix, P: sp.csr_matrix) -> MultigridLevel:
+    dinv = 1.0 / A.diagonal()
+    lmax = float((abs(A) @ np.ones(A.shape[0]) * dinv).max())  # Gershgorin bound of D^-1 A
+    return MultigridLevel(A, P, dinv, lmax)
+
+
+def field_prolongation(P: sp.csr_matrix, nfields: int) -> sp.csr_matrix:
+    """blockdiag(P, ..., P): the prolongation of ``nfields`` stacked fields."""
+    return P if nfields == 1 else sp.block_diag([P] * nfields, format="csr")
+
+
+@dataclass
+class MultigridLevel:
+    """One level of the V-cycle: matrix, prolongation from the next coarser level, smoother data."""
+
+    A: sp.csr_matrix
+    P: Optional[sp.csr_matrix]  # coarser -> this level (None on the coarsest)
+    dinv: np.ndarray = field(repr=False, default=None)
+    lmax: float = 0.0  # upper bound of the spectrum of D^-1 A (Gershgorin)
+
+
+class Multigrid:
+    """Symmetric V-cycle preconditioner of the reduced system of one Newton step (module docstring).
+
+    ``prolongations``: P_1..P_L of the unconstrained unknowns, coarse to fine (P_L maps level L-1 to
+    the unknowns of ``keep``'s length); ``keep``: the unknowns of A among them (None: all).
+    ``degree``: Chebyshev smoothing steps before and after the coarse correction; ``ratio``: the
+    smoother damps the part [lmax / ratio, lmax] of the spectrum of D^-1 A.
+    """
+
+    def __init__(self, A: sp.csr_matrix, prolongations: Sequence[sp.csr_matrix], keep: Optional[np.ndarray] = None,
+                 *, degree: int = 2, ratio: float = 8.0, solver: str = "sparsecholesky"):
+        t0 = time.perf_counter()
+        self.degree, self.ratio, self.solver = int(degree), float(ratio), solver
+        A = A.tocsr()
+        Ps = list(prolongations)
+        levels: List[MultigridLevel] = []
+        P = Ps[-1] if Ps else None
+        if P is not None and keep is not None:
+            P = P[keep]
+        self._finest = (Ps[-1] if Ps else None, None)
+        for j in range(len(Ps) - 1, -1, -1):
+            used = _used_columns(P)
+            if j == len(Ps) - 1:
+                self._finest = (Ps[-1], used)
+            P = P[:, used].tocsr()
+            levels.append(_level(A, P))
+            A = (P.T @ (A @ P)).tocsr()
+            P = Ps[j - 1][used] if j > 0 else None
+        levels.append(MultigridLevel(A, None))
+        self.levels = levels  # fine first
+        self.coarse = SPDSolver(A, solver)
+        self.time_setup = time.perf_counter() - t0
+
+    def updated(self, A: sp.csr_matrix, keep: Optional[np.ndarray]) -> "Multigrid":
+        """This hierarchy for another reduced matrix ``A`` of the same K (another ``keep``): the finest level
+        is rebuilt (matrix, truncated prolongation, smoother), the coarse levels are reused.  A valid SPD
+        preconditioner for any ``keep``; a good one when few unknowns changed (successive Newton steps)."""
+        t0 = time.perf_counter()
+        P_full, used = self._finest
+        if P_full is None:
+            return Multigrid(A, (), degree=self.degree, ratio=self.ratio, solver=self.solver)
+        out = copy.copy(self)
+        P = (P_full[keep] if keep is not None else P_full)[:, used].tocsr()
+        out.levels = [_level(A.tocsr(), P)] + self.levels[1:]
+        out.time_setup = time.perf_counter() - t0
+        return out
+
+    @property
+    def sizes(self) -> List[int]:
+        return [lev.A.shape[0] for lev in self.levels]
+
+    def _smooth(self, lev: MultigridLevel, x: Optional[np.ndarray], b: np.ndarray) -> np.ndarray:
+        """``degree`` Chebyshev steps for D^-1 A on [lmax / ratio, lmax] from x (None: from 0; x is updated)."""
+        hi = lev.lmax
+        lo = hi / self.ratio
+        theta, delta = 0.5 * (hi + lo), 0.5 * (hi - lo)
+        sigma = theta / delta
+        rho = 1.0 / sigma
+        r = b.copy() if x is None else b - lev.A @ x
+        d = lev.dinv * r
+        d *= 1.0 / theta
+        if x is None:
+            x = d.copy()
+        else:
+            x += d
+        for _ in range(1, self.degree):
+            r -= lev.A @ d
+            rho_new = 1.0 / (2.0 * sigma - rho)
+            d *= rho_new * rho
+            d += (2.0 * rho_new / delta) * (lev.dinv * r)
+            x += d
+            rho = rho_new
+        return x
+
+    def _cycle(self, j: int, b: np.ndarray) -> np.ndarray:
+        lev = self.levels[j]
+        if lev.P is None:
+            return self.coarse.solve(b)
+        x = self._smooth(lev, None, b)
+        r = b - lev.A @ x
+        x += lev.P @ self._cycle(j + 1, lev.P.T @ r)
+        return self._smooth(lev, x, b)
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        """One V-cycle applied to ``r`` from a zero start: z ~ A^-1 r."""
+        return self._cycle(0, np.asarray(r, dtype=float))

@@ -1,0 +1,147 @@
+r"""Linear-solve strategy: PCG with truncated geometric multigrid on the reduced Newton system.
+
+Step k solves the reduced SPD system A z = b of
+:meth:`~ngcontact.algebra.system.ComplementaritySystem.linearize` by conjugate gradients,
+preconditioned with one V-cycle of :class:`~ngcontact.algebra.multigrid.Multigrid` (coarse
+spaces truncated on the unknowns the step fixes), warm-started from X^{k-1}.  Its residual is the
+membrane part of the Newton residual at the new iterate (:class:`~.linear.KrylovSolve` explains
+why), so the stopping tests are in the units of the Newton loop's ||Phi|| / ||F||:
+
+* ``exact``: ||b - A z|| <= ``accuracy`` tol ||F|| (tol: the Newton tolerance): a tenth of what the
+  Newton test allows, so the iterates are those of the direct solves up to that residual;
+* ``inexact``: ||b - A z|| <= max(eta_k ||b - A z^0||, ``accuracy`` tol ||F||) with the forcing term
+  eta_k = min(||Phi(X^{k-1})|| / ||F||, ``forcing_max``).
+
+The multigrid hierarchy is reused while the row classes of the steps do not change (the last
+Newton-min step, which confirms the active set, then costs a few CG iterations); when at most
+``update_fraction`` of the reduced unknowns changed class, only its finest level is rebuilt
+(:meth:`~ngcontact.algebra.multigrid.Multigrid.updated`), otherwise the whole hierarchy.  Without a hierarchy (the coarsest level of a nested run,
+a discretization without nested P1 prolongations) or when PCG does not reach its target in
+``maxiter`` iterations, the step is factorized (recorded in ``linear_path``).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+import numpy as np
+
+from ..algebra.linalg import pcg
+from ..algebra.multigrid import Multigrid
+from ..algebra.system import LINEAR_PATHS
+from .base import IterationRecord, option_error
+from .linear import Trial
+
+__all__ = ["MultigridSolve", "MultigridIterationRecord", "MULTIGRID_MODES"]
+
+MULTIGRID_MODES = ("exact", "inexact")
+
+
+@dataclass
+class MultigridIterationRecord(IterationRecord):
+    """One Newton iteration with multigrid-preconditioned CG (``pcg_its``: CG iterations of the step)."""
+
+    cg_cum: int = 0               # CG iterations cumulated over the steps of this solve
+    mg_levels: int = 0            # levels of the V-cycle (0: factorized)
+    mg_rebuilt: int = 0           # 0 hierarchy reused, 1 (re)built, 2 finest level updated (few rows changed)
+    time_mg_setup: float = 0.0    # Galerkin products and coarsest factorization of this step
+
+
+@dataclass(frozen=True)
+class MultigridSolve:
+    """PCG + truncated multigrid on the reduced Newton system (module docstring).  Fields validated once.
+
+    ``prolongations``: the nested P1 prolongations of the unconstrained unknowns, coarse to fine
+    (a tuple; empty: every step is factorized); ``tol``: the Newton tolerance the ``accuracy``
+    factor refers to.
+    """
+
+    mode: str = "exact"
+    tol: float = 1e-10
+    accuracy: float = 0.1
+    forcing_max: float = 0.1
+    degree: int = 2
+    ratio: float = 8.0
+    maxiter: int = 100
+    update_fraction: float = 0.05
+    prolongations: Tuple = ()
+    record_type = MultigridIterationRecord
+
+    def __post_init__(self):
+        if self.mode not in MULTIGRID_MODES:
+            raise option_error("multigrid mode", self.mode, f"one of {MULTIGRID_MODES}")
+        for name in ("tol", "accuracy", "forcing_max", "update_fraction"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 < v < 1):
+                raise option_error(name, v, "a number in (0, 1)")
+        for name, lo in (("degree", 1), ("maxiter", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, int) and v >= lo):
+                raise option_error(name, v, "a positive integer")
+        v = self.ratio
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and v > 1):
+            raise option_error("ratio", v, "a number > 1")
+
+    def start(self, system, estimates: list):
+        return _MultigridSession(self, system)
+
+
+class _MultigridSession:
+    def __init__(self, opt: MultigridSolve, system):
+        self.opt, self.system = opt, system
+        self.mg: Optional[Multigrid] = None
+        self._rows = None  # row classes the hierarchy was built for
+        self.cg_cum = 0
+
+    can_refresh = False
+
+    def _hierarchy(self, lin) -> Tuple[Multigrid, int]:
+        """The V-cycle for this step and how it was obtained (0 reused, 1 built, 2 finest level updated)."""
+        rows = (lin.eq, lin.mixed, lin.w)
+        if self.mg is not None:
+            changed = sum(int(np.count_nonzero(a != b)) for a, b in zip(rows, self._rows))
+            if changed == 0:
+                return self.mg, 0
+            if changed <= self.opt.update_fraction * lin.size:
+                self.mg = self.mg.updated(lin.A, lin.keep)
+                self._rows = tuple(np.array(a, copy=True) for a in rows)
+                return self.mg, 2
+        self.mg = None  # free the old hierarchy first
+        self.mg = Multigrid(lin.A, self.opt.prolongations, lin.keep, degree=self.opt.degree, ratio=self.opt.ratio,
+                            solver=self.system.solver)
+        self._rows = tuple(np.array(a, copy=True) for a in rows)
+        return self.mg, 1
+
+    def step(self, k, x, y, c, Ca, Cb, res_prev) -> Trial:
+        opt, system = self.opt, self.system
+        t0 = time.perf_counter()
+        lin = system.linearize(x, y, c, Ca, Cb)
+        floor = opt.accuracy * opt.tol * system.scale()  # a tenth of the Newton test's ||Phi||
+        fields = dict(linear_size=lin.size, mg_levels=0, mg_rebuilt=0, time_mg_setup=0.0, pcg_its=0)
+        z = None
+        if opt.prolongations:
+            mg, how = self._hierarchy(lin)
+            fields.update(mg_levels=len(mg.levels), mg_rebuilt=how, time_mg_setup=mg.time_setup if how else 0.0)
+            z0 = lin.restrict(x)
+            target = floor
+            if opt.mode == "inexact":
+                r0 = float(np.linalg.norm(lin.b - lin.A @ z0))
+                target = max(floor, min(res_prev, opt.forcing_max) * r0)
+            bnorm = float(np.linalg.norm(lin.b)) or 1.0
+            res = pcg(lin.A, lin.b, mg, z0, rtol=target / bnorm, maxiter=opt.maxiter)
+            fields["pcg_its"] = res.iterations
+            self.cg_cum += res.iterations
+            if res.converged:
+                z = res.x
+                fields["linear_path"] = LINEAR_PATHS.index("multigrid")
+            else:
+                fields["linear_path"] = LINEAR_PATHS.index("pcg-failed")
+        if z is None:
+            z = system.direct_solve(lin.A, lin.b)
+        fields["cg_cum"] = self.cg_cum
+        xn, yn = lin.recover(z)
+        return Trial(xn, yn, time.perf_counter() - t0, fields)
+
+    def after_step(self, k, x, y, step) -> dict:
+        return {}

@@ -1,0 +1,125 @@
+"""Truncated geometric multigrid (algebra/multigrid.py) and the multigrid Newton modes (newton/multigrid.py)."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from ngsolve import GridFunction
+
+from ngcontact.algebra.linalg import SPDSolver, pcg
+from ngcontact.algebra.multigrid import Multigrid
+from ngcontact.algebra.system import LINEAR_PATHS
+from ngcontact.discretizations.fem import FEMDiscretization
+from ngcontact.drivers import RunOptions, run_scene
+from ngcontact.drivers.level import multigrid_hierarchy
+from ngcontact.problems.manufactured import scale_problem
+from ngcontact.scenes import load_scene
+
+
+def _chain(scene_name, levels):
+    problem = load_scene(scene_name).problem
+    disc = None
+    for mesh in problem.domain.meshes(levels):
+        fine = FEMDiscretization(problem, mesh, order=1)
+        fine.mg_prolongations = multigrid_hierarchy(fine, disc) if disc is not None else ()
+        disc = fine
+        yield disc
+
+
+@pytest.fixture(scope="module")
+def ex9_levels():
+    return list(_chain("ex9_obstacle", 5))
+
+
+def test_prolongation_is_the_coarse_interpolant(ex9_levels):
+    """P x_c equals the coarse P1 function (zero on the boundary) evaluated by NGSolve at the fine nodes."""
+    coarse, fine = ex9_levels[2], ex9_levels[3]
+    P = fine.mg_prolongations[-1]
+    xc = np.random.default_rng(1).standard_normal(coarse.n_interior)
+    gf = GridFunction(coarse.fes)
+    gf.vec.FV().NumPy()[:] = 0.0
+    gf.vec.FV().NumPy()[coarse.interior] = xc
+    pts = fine.constraint_points
+    ref = np.array([gf(coarse.mesh(*p)) for p in pts])
+    assert np.abs(P @ xc - ref).max() <= 1e-13 * np.abs(xc).max()
+
+
+def _solve(A, b, mg):
+    res = pcg(A, b, mg, rtol=1e-10, maxiter=100)
+    assert res.converged
+    return res
+
+
+def test_vcycle_is_symmetric_positive_definite(ex9_levels):
+    disc = ex9_levels[-1]
+    K = disc.system.K
+    mg = Multigrid(K, disc.mg_prolongations)
+    rng = np.random.default_rng(2)
+    v, w = rng.standard_normal((2, K.shape[0]))
+    assert abs(v @ mg(w) - w @ mg(v)) <= 1e-12 * np.linalg.norm(v) * np.linalg.norm(mg(w))
+    assert v @ mg(v) > 0
+
+
+def test_mg_pcg_unconstrained_and_truncated(ex9_levels):
+    """Mesh-independent CG counts with the V-cycle on K and on K restricted to the unknowns outside a disk
+    (the truncated hierarchy), solutions equal to the sparse Cholesky ones."""
+    its = []
+    for disc in ex9_levels[2:]:
+        K, F = disc.system.K, disc.system.F
+        res = _solve(K, F, Multigrid(K, disc.mg_prolongations))
+        x = SPDSolver(K).solve(F)
+        assert np.abs(res.x - x).max() <= 1e-8 * np.abs(x).max()
+        keep = (disc.constraint_points ** 2).sum(1) > 0.7 ** 2
+        A = K[keep][:, keep].tocsr()
+        b = F[keep] + np.random.default_rng(3).standard_normal(keep.sum())
+        mg = Multigrid(A, disc.mg_prolongations, keep)
+        assert mg.levels[1].A.shape[0] < disc.mg_prolongations[-1].shape[1]  # coarse unknowns inside dropped
+        res_t = _solve(A, b, mg)
+        z = SPDSolver(A).solve(b)
+        assert np.abs(res_t.x - z).max() <= 1e-8 * np.abs(z).max()
+        its.append((res.iterations, res_t.iterations))
+    assert max(max(p) for p in its) <= 15, its
+    # the finest-level hierarchy updated to a slightly different active set stays a good preconditioner
+    keep2 = keep.copy()
+    keep2[np.flatnonzero(~keep)[:20]] = True
+    A2 = K[keep2][:, keep2].tocsr()
+    res2 = _solve(A2, F[keep2], mg.updated(A2, keep2))
+    assert res2.iterations <= 20
+
+
+def _rows(res):
+    return [{k: r[k] for k in ("newton_its", "err_energy", "err_max_nodal", "active_nodes")} for r in res.rows]
+
+
+@pytest.mark.parametrize("scene,levels", [("ex9_obstacle", 4), ("test1", 4)])
+def test_multigrid_newton_matches_direct(scene, levels):
+    """Same Newton counts, active sets and errors as the sparse Cholesky steps; levels >= 1 solved by CG + MG."""
+    sc = load_scene(scene)
+    runs = {m: run_scene(sc, RunOptions(levels=levels, newton=m)) for m in ("direct", "multigrid")}
+    for a, b in zip(_rows(runs["direct"]), _rows(runs["multigrid"])):
+        assert a["newton_its"] == b["newton_its"] and a["active_nodes"] == b["active_nodes"]
+        assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8)
+    mg = runs["multigrid"]
+    assert mg.rows[0]["mg_levels"] == 0 and mg.rows[0]["cg_its"] == 0  # coarsest level: factorized
+    for lev, row in enumerate(mg.rows[1:], start=1):
+        assert row["mg_levels"] == lev + 1 and row["cg_its"] > 0 and row["certified"] == 1
+    paths = [LINEAR_PATHS[int(it["linear_path"])] for it in mg.iterations if it["level"] > 0 and it["k"] > 0]
+    assert paths and set(paths) == {"multigrid"}
+
+
+@pytest.mark.parametrize("factor", [1e-8, 1e8])
+def test_multigrid_newton_scaled_data(factor):
+    """Data times 1e-8 / 1e8: the same Newton counts and the solution scaled by the factor."""
+    sc = load_scene("test1")
+    base = run_scene(sc, RunOptions(levels=3, newton="multigrid"))
+    scaled = run_scene(replace(sc, problem=scale_problem(sc.problem, data=factor)), RunOptions(levels=3, newton="multigrid"))
+    for a, b in zip(base.rows, scaled.rows):
+        assert a["newton_its"] == b["newton_its"] and a["cg_its"] == b["cg_its"]
+        assert b["err_energy"] == pytest.approx(factor * a["err_energy"], rel=1e-8)
+
+
+def test_multigrid_option_errors():
+    with pytest.raises(ValueError, match="option newton must be 'direct' for disc 'fem' order 2"):
+        RunOptions(order=2, newton="multigrid")
+    with pytest.raises(ValueError, match="option newton"):
+        RunOptions(disc="hho", newton="multigrid-inexact")
+    RunOptions(newton="multigrid", newton_stop="balanced")  # the balanced stop needs only the iterates
