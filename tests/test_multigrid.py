@@ -123,3 +123,17 @@ def test_multigrid_option_errors():
     with pytest.raises(ValueError, match="option newton"):
         RunOptions(disc="hho", newton="multigrid-inexact")
     RunOptions(newton="multigrid", newton_stop="balanced")  # the balanced stop needs only the iterates
+
+
+def test_multigrid_inexact_converges_to_the_same_solution():
+    """The forcing-term mode: fewer CG iterations per step, the converged solution within the Newton
+    tolerance of the exact mode's (errors equal to 1e-8 relative)."""
+    sc = load_scene("test1")
+    exact = run_scene(sc, RunOptions(levels=4, newton="multigrid"))
+    inexact = run_scene(sc, RunOptions(levels=4, newton="multigrid-inexact"))
+    for a, b in zip(exact.rows, inexact.rows):
+        assert b["newton_converged"] == 1 and b["certified"] == 1
+        assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8)
+    first = [it for it in inexact.iterations if it["level"] == 3 and it["k"] == 1][0]
+    first_exact = [it for it in exact.iterations if it["level"] == 3 and it["k"] == 1][0]
+    assert first["pcg_its"] < first_exact["pcg_its"]
