@@ -208,10 +208,35 @@ def _mesh_arrays(mesh):
 
 
 def _contact_vertices(coords, contact) -> np.ndarray:
-    """1.0 at the vertices that are discrete contact nodes, else 0.0."""
+    """1.0 at the vertices that are discrete contact nodes, else 0.0 (coordinates matched to 1e-9 relative)."""
     scale = max(np.abs(coords).max(), 1.0) * 1e-9
-    keys = {tuple(k) for k in np.round(np.asarray(contact, float).reshape(-1, 2) / scale).astype(np.int64)}
-    return np.array([tuple(k) in keys for k in np.round(coords / scale).astype(np.int64)], dtype=float)
+
+    def keys(a):
+        k = np.ascontiguousarray(np.round(np.asarray(a, float).reshape(-1, 2) / scale).astype(np.int64))
+        return k.view(np.dtype((np.void, 16))).ravel()
+
+    return np.isin(keys(coords), keys(contact)).astype(float)
+
+
+#: above this many triangles the solution maps are drawn from values on a regular GRID_POINTS^2 grid
+#: (matplotlib renders 1e6 triangles in minutes; the picture has fewer pixels than that)
+MAX_PLOT_TRIANGLES = 250_000
+GRID_POINTS = 500
+
+
+def _grid_fields(mesh, coords, fields):
+    """(X, Y, [values on the grid]) of CoefficientFunctions on a regular grid over the mesh's bounding box
+    (NaN outside the mesh)."""
+    (x0, y0), (x1, y1) = coords.min(axis=0), coords.max(axis=0)
+    X, Y = np.meshgrid(np.linspace(x0, x1, GRID_POINTS), np.linspace(y0, y1, GRID_POINTS))
+    pts = mesh(X.ravel(), Y.ravel())
+    inside = pts["nr"] >= 0
+    out = []
+    for cf in fields:
+        v = np.full(X.size, np.nan)
+        v[inside] = np.asarray(cf(pts[inside])).ravel()
+        out.append(v.reshape(X.shape))
+    return X, Y, out
 
 
 def plot_solution(disc, x, y, out_file, title: str = "") -> Path:
@@ -227,15 +252,26 @@ def solution_figure(disc, x, y, title: str = "") -> Figure:
     mesh = disc.mesh
     coords, tris = _mesh_arrays(mesh)
     gfs = disc.gridfunctions(x, y)
-    pts = mesh(coords[:, 0], coords[:, 1])
-    gap = np.asarray(gfs["gap"](pts)).ravel()
-    lam = np.asarray(gfs["lam"](pts)).ravel()
     in_contact = _contact_vertices(coords, disc.contact_points(x, y))
     gap_name = r"gap $u_{1h} - u_{2h}$" if "u1" in gfs else r"gap $u_h - \psi$"
     fig = new_figure(figsize=(10.5, 4.5))
     axs = fig.subplots(1, 2)
+    on_grid = len(tris) > MAX_PLOT_TRIANGLES
+    if on_grid:  # values on a regular grid; the contact indicator as a P1 function of the vertices
+        from ngsolve import H1, GridFunction
+
+        ind = GridFunction(H1(mesh, order=1))
+        ind.vec.FV().NumPy()[:] = in_contact
+        X, Y, (gap, lam, ind_grid) = _grid_fields(mesh, coords, (gfs["gap"], gfs["lam"], ind))
+    else:
+        pts = mesh(coords[:, 0], coords[:, 1])
+        gap = np.asarray(gfs["gap"](pts)).ravel()
+        lam = np.asarray(gfs["lam"](pts)).ravel()
     for ax, val, name in ((axs[0], gap, gap_name), (axs[1], lam, r"contact pressure $\lambda_h$")):
-        tc = ax.tripcolor(coords[:, 0], coords[:, 1], tris, val, shading="gouraud", cmap="viridis")
+        if on_grid:
+            tc = ax.pcolormesh(X, Y, val, shading="gouraud", cmap="viridis")
+        else:
+            tc = ax.tripcolor(coords[:, 0], coords[:, 1], tris, val, shading="gouraud", cmap="viridis")
         fig.colorbar(tc, ax=ax, label=name)
         ax.set_aspect("equal")
         ax.set_title(name)
@@ -243,13 +279,17 @@ def solution_figure(disc, x, y, title: str = "") -> Figure:
         ax.set_ylabel("y")
     if 0 < in_contact.sum() < len(in_contact):
         for ax in axs:
-            ax.tricontour(coords[:, 0], coords[:, 1], tris, in_contact, levels=[0.5], colors="r", linewidths=0.9)
+            if on_grid:
+                ax.contour(X, Y, ind_grid, levels=[0.5], colors="r", linewidths=0.9)
+            else:
+                ax.tricontour(coords[:, 0], coords[:, 1], tris, in_contact, levels=[0.5], colors="r", linewidths=0.9)
         axs[0].legend(handles=[Line2D([], [], color="r", lw=0.9, label="boundary of the contact set")],
                       loc="upper right", fontsize=7)
     elif in_contact.sum():
         axs[0].set_title(gap_name + " (contact at every vertex)")
     if title:
-        fig.suptitle(f"{title}: {mesh.ne} triangles, ndof {disc.ndof}", fontsize=10)
+        fig.suptitle(f"{title}: {mesh.ne} triangles, ndof {disc.ndof}"
+                     + (f" (drawn on a {GRID_POINTS}x{GRID_POINTS} grid)" if on_grid else ""), fontsize=10)
     return fig
 
 

@@ -224,6 +224,35 @@ def test_solution_figure_has_titles_axes_colour_bars_and_the_contact_boundary():
     assert fig._suptitle.get_text().startswith("test1 FEM P1")
 
 
+def test_solution_figure_of_a_large_mesh_is_drawn_on_a_grid(monkeypatch):
+    """Above MAX_PLOT_TRIANGLES the fields are sampled on a regular grid (matplotlib renders 1e6 triangles
+    in minutes): same contact boundary as the triangle plot, values of the discrete fields at the grid points."""
+    import ngcontact.plotting as plotting
+    from matplotlib.collections import QuadMesh
+    from ngcontact.discretizations.fem import FEMDiscretization
+    from ngcontact.newton import NewtonOptions, semismooth_newton
+    from ngcontact.scenes import load_scene
+
+    scene = load_scene("test1")
+    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(2), order=1)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
+    monkeypatch.setattr(plotting, "MAX_PLOT_TRIANGLES", 100)
+    monkeypatch.setattr(plotting, "GRID_POINTS", 41)
+    fig = plotting.solution_figure(disc, sol.x, sol.y, title="large")
+    fields = fig.axes[:2]
+    meshes = [c for c in fields[0].collections if isinstance(c, QuadMesh)]
+    assert meshes and "grid" in fig._suptitle.get_text()
+    assert fields[0].get_legend().get_texts()[0].get_text() == "boundary of the contact set"
+    gap = np.asarray(meshes[0].get_array()).reshape(41, 41)
+    gfs = disc.gridfunctions(sol.x, sol.y)
+    mesh = disc.mesh
+    assert gap[20, 20] == pytest.approx(gfs["gap"](mesh(0.5, 0.5)), abs=1e-12)  # the centre of the unit square
+    contact = disc.contact_points(sol.x, sol.y)
+    coords = np.array(mesh.ngmesh.Coordinates())[:, :2]
+    ind = plotting._contact_vertices(coords, contact)
+    assert ind.sum() == len(contact) and set(np.unique(ind)) <= {0.0, 1.0}
+
+
 def test_newton_plot_colours_are_distinct_for_many_levels(tmp_path):
     from ngcontact.plotting import level_colors, plot_run
 
