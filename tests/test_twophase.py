@@ -156,7 +156,8 @@ def test_estimator_components_at_a_converged_step():
 
 def test_adaptive_stop_projects_the_accepted_iterate_onto_s_le_1():
     """An iterate that meets the [CG20] criterion with S - 1 = 1e-6 in one cell is accepted (the
-    violation is part of eta_lin,w) and returned with S <= 1; one that misses the criterion is not."""
+    violation is part of eta_lin,w) and returned with S <= 1 and the cells' hydrogen content; one that
+    misses the criterion is not."""
     from types import SimpleNamespace
 
     from ngcontact.twophase.estimators import AdaptiveStepStop, Components, TwoPhaseEstimator
@@ -169,6 +170,8 @@ def test_adaptive_stop_projects_the_accepted_iterate_onto_s_le_1():
     stop = AdaptiveStepStop(est)
     x = x0.copy()
     x[0::3] = [1.0, 1.0 + 1e-6, 0.99, 1.0, 1.0, 1.0, 1.0, 1.0]
+    x[1::3] += 2e5
+    x[2::3] = 5e-5
     one = np.ones(2)
     for lin, expected in ((1e-4 * one, "adaptive stopping criterion"), (1e-2 * one, None)):
         est.last = Components(eta_sp=one, eta_tm=0.5 * one, eta_lin=lin, eta_alg=1e-9 * one)
@@ -179,7 +182,9 @@ def test_adaptive_stop_projects_the_accepted_iterate_onto_s_le_1():
     xa, _ = stop.accepted(x, system.y0)
     assert xa[0::3].max() == 1.0 and xa[3] == 1.0 and xa[6] == 0.99
     assert stop.projected == pytest.approx(1e-6, rel=1e-6)
-    assert np.array_equal(np.delete(xa, 3), np.delete(x, 3))  # only the violating S changed
+    assert np.array_equal(np.delete(xa, [3, 5]), np.delete(x, [3, 5]))  # only the violating cell changed
+    a_h = disc.accumulation(disc.state(x))[0][1]
+    assert np.allclose(disc.accumulation(disc.state(xa))[0][1], a_h, rtol=1e-14, atol=0)  # H2 content kept
     assert x[3] == 1.0 + 1e-6  # the loop's iterate is not modified in place
 
 

@@ -288,8 +288,9 @@ def _report(out, solver, gam, reg, ref, quick, check):
           "not on the residual), so their defects sit at that level (table above).",
           "- S <= 1: Newton-min keeps S = 1 exactly on its liquid rows (also under GMRES: `exact_rows`); with "
           "Fischer-Burmeister |C(a, b)| <= tol only bounds S - 1 by the Newton tolerance (1e-8). The adaptive "
-          "runs project the iterate the [CG20] criterion accepts onto S <= 1 (`AdaptiveStepStop.accepted`; the "
-          "violation is part of eta_lin,w as the mass rate phi rho_w (S - 1) / dt); largest projection: "
+          "runs project the iterate the [CG20] criterion accepts onto S <= 1, keeping each cell's hydrogen "
+          "content (chi adjusted; `AdaptiveStepStop.accepted`; the violation is part of eta_lin,w as the mass "
+          "rate phi rho_w (S - 1) / dt) instead of iterating until S - 1 <= tol; largest projection: "
           + ", ".join(f"{n} {max((it['projected_S'] for it in solver[n]['run'].iterates), default=0.0):.1e}"
                       for n in ("min-adaptive", "fb-adaptive")) + ".",
           "- The estimators (`ngcontact/twophase/estimators.py`) follow [CG20]'s structure (flux reconstructions "

@@ -205,8 +205,9 @@ class AdaptiveStepStop(EstimatorStop):
     iterate can leave S - 1 > 0 in cells the step moves from gas to liquid (Fischer-Burmeister: in any cell,
     the bound |C| <= tol holds only at residual convergence); that violation enters eta_lin,w as the
     complementarity mass rate phi rho_w (S - 1) / dt, so where the criterion holds, the water mass the
-    projection removes is within the accepted linearization error.  ``projected`` holds max(S - 1, 0) of
-    the last projection (0 if none was needed)."""
+    projection removes is within the accepted linearization error.  The projection keeps each cell's
+    hydrogen content A_h = phi (beta_l chi S + beta_g P_g (1 - S)): at S = 1, chi = A_h / (phi beta_l).
+    ``projected`` holds max(S - 1, 0) of the last projection (0 if none was needed)."""
 
     def __init__(self, estimator: TwoPhaseEstimator):
         self.estimator = estimator
@@ -226,11 +227,16 @@ class AdaptiveStepStop(EstimatorStop):
         return "converged" if rec.res <= tol else None
 
     def accepted(self, x, y):
-        """(x with S <= 1, y): the projection onto the physical range of the saturation."""
+        """(x with S <= 1, y): the projection onto the physical range of the saturation that keeps the
+        hydrogen content of every cell (class docstring)."""
         s = x[0::NV]
         self.projected = max(float(s.max()) - 1.0, 0.0)
         if self.projected == 0.0:
             return x, y
+        disc = self.estimator.disc
+        cells = np.flatnonzero(s > 1.0)
+        a_h = disc.accumulation(disc.state(x))[0][1, cells]
         x = x.copy()
-        x[0::NV] = np.minimum(s, 1.0)
+        x[NV * cells] = 1.0
+        x[NV * cells + 2] = np.maximum(a_h / (disc.prm.porosity * disc.prm.beta_l), 0.0)
         return x, y
