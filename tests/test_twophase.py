@@ -152,3 +152,78 @@ def test_estimator_components_at_a_converged_step():
     c3 = est.components(x, zero, dx)
     assert np.any(c3.eta_alg > 1e-3 * floor) and not est.stop_linear(c3)
     assert x_prev is None or x_prev.shape == x.shape
+
+
+def test_adaptive_stop_projects_the_accepted_iterate_onto_s_le_1():
+    """An iterate that meets the [CG20] criterion with S - 1 = 1e-6 in one cell is accepted (the
+    violation is part of eta_lin,w) and returned with S <= 1 and the cells' hydrogen content; one that
+    misses the criterion is not."""
+    from types import SimpleNamespace
+
+    from ngcontact.twophase.estimators import AdaptiveStepStop, Components, TwoPhaseEstimator
+
+    prm = TwoPhaseParams()
+    disc = TwoPhaseFV(prm, interval_mesh(prm.length, 8))
+    x0 = initial_state(prm, disc.mesh)
+    system = disc.step_system(x0, 0.0, 5000 * YEAR)
+    est = TwoPhaseEstimator(disc, system)
+    stop = AdaptiveStepStop(est)
+    x = x0.copy()
+    x[0::3] = [1.0, 1.0 + 1e-6, 0.99, 1.0, 1.0, 1.0, 1.0, 1.0]
+    x[1::3] += 2e5
+    x[2::3] = 5e-5
+    one = np.ones(2)
+    for lin, expected in ((1e-4 * one, "adaptive stopping criterion"), (1e-2 * one, None)):
+        est.last = Components(eta_sp=one, eta_tm=0.5 * one, eta_lin=lin, eta_alg=1e-9 * one)
+        rec = SimpleNamespace(res=1.0)
+        stop.measure(rec, system, x, system.y0, None)
+        assert stop.check(rec, 1e-8) == expected
+        assert rec.eta_lin == pytest.approx(lin[0])
+    xa, _ = stop.accepted(x, system.y0)
+    assert xa[0::3].max() == 1.0 and xa[3] == 1.0 and xa[6] == 0.99
+    assert stop.projected == pytest.approx(1e-6, rel=1e-6)
+    assert np.array_equal(np.delete(xa, [3, 5]), np.delete(x, [3, 5]))  # only the violating cell changed
+    a_h = disc.accumulation(disc.state(x))[0][1]
+    assert np.allclose(disc.accumulation(disc.state(xa))[0][1], a_h, rtol=1e-14, atol=0)  # H2 content kept
+    assert x[3] == 1.0 + 1e-6  # the loop's iterate is not modified in place
+
+
+def test_adaptive_run_logs_its_newton_iterates():
+    """iterates.csv of an adaptive run: one row per Newton iterate (the steps' Newton counts), the last
+    one of each step with the stop reason, ratio_c = eta_lin,c / max(eta_sp,c, eta_tm,c), and S <= 1."""
+    from ngcontact.twophase.outputs import run_files
+    from ngcontact.twophase.run import ITERATE_COLUMNS
+
+    run = run_h2(cells=100, dt_years=5000.0, t_final_years=3e4, cfun="fb", newton="adaptive")
+    assert run.completed and not run.log and len(run.iterates) == run.newton_total
+    for row in run.rows:
+        its = [it for it in run.iterates if it["step"] == row.step]
+        assert [it["k"] for it in its] == list(range(1, row.newton_its + 1))
+        assert its[-1]["stop"] in ("adaptive stopping criterion", "converged")
+        assert not any(it["stop"] for it in its[:-1])
+        assert sum(it["gmres_its"] for it in its) == row.gmres_its
+    it = run.iterates[-1]
+    assert it["ratio_w"] == pytest.approx(it["eta_lin_w"] / max(it["eta_sp_w"], it["eta_tm_w"]))
+    assert max(r.max_S_minus_1 for r in run.rows) <= 0.0
+    text = run_files(run, {})["iterates.csv"]
+    assert text.splitlines()[0] == ",".join(ITERATE_COLUMNS) and len(text.splitlines()) == run.newton_total + 1
+
+
+def test_eta_lin_is_the_flux_error_of_the_newton_iterate():
+    """diagnose.linearization_check (100 cells, the step from 4e4 y): eta_lin,c of the exact Newton-min
+    iterates is their flux error against the converged step within 15 % while that error is above 1e-6 of
+    the step's flux change (in 1D the linearized fluxes carry the converged step's balance)."""
+    from ngcontact.twophase.diagnose import linearization_check
+
+    check = linearization_check(t_years=4e4, cells=100, dt_years=2e4)
+    change = np.array(check["step_change"])
+    assert check["newton"] >= 3 and np.all(change > 0)
+    tested = 0
+    for row in check["rows"][1:]:
+        for j, c in enumerate("wh"):
+            if row[f"err_{c}"] > 1e-6 * change[j]:
+                assert row[f"eta_lin_{c}"] == pytest.approx(row[f"err_{c}"], rel=0.15), (row["k"], c)
+                tested += 1
+    assert tested >= 6
+    with pytest.raises(ValueError, match="option t_years must be >= 2 dt_years"):
+        linearization_check(t_years=1e4, cells=100, dt_years=2e4)

@@ -26,7 +26,10 @@ Components per cell K (L^2(K) norms, h_K / pi the Poincare constant of an interv
 
 Step values: eta_x,c = (sum_K eta_x,K,c^2)^{1/2} [kg m^{-3/2} s^{-1} in 1D].  Stopping ([CG20] (5.1), (5.2)),
 for every component c:  GMRES when eta_alg,c <= gamma_alg max(eta_sp,c, eta_tm,c, eta_lin,c);  Newton
-when eta_lin,c <= gamma_lin max(eta_sp,c, eta_tm,c).
+when eta_lin,c <= gamma_lin max(eta_sp,c, eta_tm,c) (the accepted iterate projected onto S <= 1:
+:class:`AdaptiveStepStop`).  In 1D the flux part of eta_lin,c is close to the flux error of the iterate,
+||F_c(X^k) - F_c(X^*)|| against the converged step X^* (the linearized fluxes balance the linearized
+accumulation from the prescribed flux at x = 0 on); :mod:`.diagnose` measures both.
 
 What the estimate bounds: [CG20] proves, assuming a weak solution exists, that its estimator bounds a
 dual norm of the residual of the continuous equations at the reconstructed approximate solution (plus a
@@ -196,17 +199,21 @@ class TwoPhaseEstimator:
 
 class AdaptiveStepStop(EstimatorStop):
     """Newton stopping rule of the loop (:mod:`ngcontact.newton.stopping` interface): the [CG20] criterion on
-    the components of the accepted iterate (``estimator.last``) at an iterate with S <= 1 + ``tol_feasible``
-    (otherwise one more step; the run uses 1e-14 for Newton-min, whose liquid rows are exact, and the
-    Newton tolerance for FB, the bound |C(a, b)| <= tol gives), or the residual test."""
+    the components of the accepted iterate (``estimator.last``), or the residual test.
 
-    def __init__(self, estimator: TwoPhaseEstimator, tol_feasible: float = 1e-14):
-        self.estimator, self.tol_feasible = estimator, tol_feasible
-        self.feasible = False
+    The iterate the criterion accepts is returned with S projected onto S <= 1 (:meth:`accepted`).  A Newton
+    iterate can leave S - 1 > 0 in cells the step moves from gas to liquid (Fischer-Burmeister: in any cell,
+    the bound |C| <= tol holds only at residual convergence); that violation enters eta_lin,w as the
+    complementarity mass rate phi rho_w (S - 1) / dt, so where the criterion holds, the water mass the
+    projection removes is within the accepted linearization error.  The projection keeps each cell's
+    hydrogen content A_h = phi (beta_l chi S + beta_g P_g (1 - S)): at S = 1, chi = A_h / (phi beta_l).
+    ``projected`` holds max(S - 1, 0) of the last projection (0 if none was needed)."""
+
+    def __init__(self, estimator: TwoPhaseEstimator):
+        self.estimator = estimator
+        self.projected = 0.0
 
     def measure(self, rec, system, x, y, r) -> None:
-        a, _ = system.pair(x, y)
-        self.feasible = bool(a.min() >= -self.tol_feasible)  # S <= 1 (up to round-off) at an accepted iterate
         comp = self.estimator.last
         if comp is not None:
             rec.eta_disc = 1.0  # the ratios below are relative to max(eta_sp, eta_tm) per component
@@ -215,6 +222,21 @@ class AdaptiveStepStop(EstimatorStop):
 
     def check(self, rec, tol: float):
         comp = self.estimator.last
-        if comp is not None and self.estimator.stop_newton(comp) and self.feasible:
+        if comp is not None and self.estimator.stop_newton(comp):
             return "adaptive stopping criterion"
         return "converged" if rec.res <= tol else None
+
+    def accepted(self, x, y):
+        """(x with S <= 1, y): the projection onto the physical range of the saturation that keeps the
+        hydrogen content of every cell (class docstring)."""
+        s = x[0::NV]
+        self.projected = max(float(s.max()) - 1.0, 0.0)
+        if self.projected == 0.0:
+            return x, y
+        disc = self.estimator.disc
+        cells = np.flatnonzero(s > 1.0)
+        a_h = disc.accumulation(disc.state(x))[0][1, cells]
+        x = x.copy()
+        x[NV * cells] = 1.0
+        x[NV * cells + 2] = np.maximum(a_h / (disc.prm.porosity * disc.prm.beta_l), 0.0)
+        return x, y

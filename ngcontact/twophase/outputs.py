@@ -15,7 +15,7 @@ from dataclasses import asdict
 import numpy as np
 
 from .params import YEAR
-from .run import STEP_COLUMNS, TwoPhaseRun
+from .run import ITERATE_COLUMNS, STEP_COLUMNS, TwoPhaseRun
 
 __all__ = ["benchmark_quantities", "run_files", "write_plots", "PROFILE_COLUMNS", "DEFAULT_PROFILE_YEARS"]
 
@@ -81,15 +81,19 @@ def profile_rows(run: TwoPhaseRun):
 
 
 def run_files(run: TwoPhaseRun, options: dict, case: str = "h2_storage") -> dict:
-    """{file name: text} of a finished run: steps.csv, profiles.csv, summary.json."""
+    """{file name: text} of a finished run: steps.csv, profiles.csv, summary.json, and iterates.csv when the
+    run logged its Newton iterates (adaptive mode)."""
     summary = dict(case=case, completed=run.completed, options=options,
                    parameters=asdict(run.prm), seconds_per_year=YEAR, steps=len(run.rows),
                    benchmark_x0=benchmark_quantities(run) if run.rows else {}, log=run.log,
                    time_s=sum(r.time_s for r in run.rows))
     text = json.dumps(summary, indent=1, default=_json)
-    return {"steps.csv": _csv(STEP_COLUMNS, (r.values() for r in run.rows)),
-            "profiles.csv": _csv(PROFILE_COLUMNS, profile_rows(run)),
-            "summary.json": text.replace("NaN", "null") + "\n"}
+    files = {"steps.csv": _csv(STEP_COLUMNS, (r.values() for r in run.rows)),
+             "profiles.csv": _csv(PROFILE_COLUMNS, profile_rows(run)),
+             "summary.json": text.replace("NaN", "null") + "\n"}
+    if run.iterates:
+        files["iterates.csv"] = _csv(ITERATE_COLUMNS, ([r[c] for c in ITERATE_COLUMNS] for r in run.iterates))
+    return files
 
 
 def write_plots(files: dict, path_of) -> list:

@@ -18,7 +18,7 @@ from .fv import TwoPhaseFV, initial_state
 from .mesh1d import interval_mesh
 from .params import YEAR, TwoPhaseParams
 
-__all__ = ["run_h2", "check_options", "TwoPhaseRun", "StepRow", "NEWTON_MODES", "STEP_COLUMNS"]
+__all__ = ["run_h2", "check_options", "TwoPhaseRun", "StepRow", "NEWTON_MODES", "STEP_COLUMNS", "ITERATE_COLUMNS"]
 
 NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive")
 
@@ -27,6 +27,14 @@ STEP_COLUMNS = ("step", "t_years", "dt_years", "newton_its", "gmres_its", "dt_cu
                 "Pg_0_Pa", "chi_0", "water_defect_rel", "h2_defect_rel", "min_S_minus_Slr", "max_S_minus_1",
                 "min_chi", "eta_sp_w", "eta_sp_h", "eta_tm_w", "eta_tm_h", "eta_lin_w", "eta_lin_h", "eta_alg_w",
                 "eta_alg_h", "time_s")
+
+#: columns of iterates.csv (adaptive mode): one row per Newton iterate X^k of every attempted step, with the
+#: [CG20] components of X^k (linearization at X^{k-1}) and ratio_c = eta_lin,c / max(eta_sp,c, eta_tm,c), the
+#: quantity the Newton criterion compares with gamma_lin; stop: the loop's reason at the last iterate of an
+#: attempt ('' before it); projected_S: max(S - 1, 0) removed by the projection of the accepted iterate
+ITERATE_COLUMNS = ("step", "t_years", "dt_years", "k", "gmres_its", "gmres_accepted", "res", "eta_sp_w", "eta_sp_h",
+                   "eta_tm_w", "eta_tm_h", "eta_lin_w", "eta_lin_h", "eta_alg_w", "eta_alg_h", "ratio_w", "ratio_h",
+                   "stop", "projected_S")
 
 
 @dataclass
@@ -72,6 +80,7 @@ class TwoPhaseRun:
     x: np.ndarray
     log: List[str] = field(default_factory=list)
     completed: bool = True
+    iterates: List[dict] = field(default_factory=list)  # adaptive mode: ITERATE_COLUMNS per Newton iterate
 
     @property
     def newton_total(self) -> int:
@@ -139,7 +148,7 @@ def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: 
     say = progress or (lambda m: None)
     x = initial_state(prm, disc.mesh)
     t, T = 0.0, t_final_years * YEAR
-    rows, profiles, log = [], {}, []
+    rows, profiles, log, iterates = [], {}, [], []
     wanted = sorted(float(p) for p in profile_years)
     M_prev = disc.masses(x)
     step = 0
@@ -155,14 +164,14 @@ def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: 
             dt = min(dt, t_start + dt_full - t)
             system = disc.step_system(x, t, t + dt)
             est = TwoPhaseEstimator(disc, system, gamma_alg, gamma_lin) if (estimate or newton == "adaptive") else None
-            stop = AdaptiveStepStop(est, tol_feasible=tol if cfun == "fb" else 1e-14) if newton == "adaptive" else None
-            guess = x
-            if predict and x_old is not None:
-                guess = x + (x - x_old) * (dt / dt_old)
-                guess[0::3] = np.clip(guess[0::3], prm.s_lr, 1.0)
-                guess[2::3] = np.maximum(guess[2::3], 0.0)
+            stop = AdaptiveStepStop(est) if newton == "adaptive" else None
+            guess = predictor(prm, x, x_old, dt / dt_old) if predict and x_old is not None else x
+            first = len(iterates)
+            record = _iterate_logger(iterates, est, step, (t + dt) / YEAR, dt / YEAR) if stop else None
             with np.errstate(over="ignore", invalid="ignore"):  # a diverging Newton is reported (non-finite) and cut
-                res = semismooth_newton(system, guess, system.y0, opts, linear=_linear(newton, est), stop=stop)
+                res = semismooth_newton(system, guess, system.y0, opts, record, linear=_linear(newton, est), stop=stop)
+            if len(iterates) > first:
+                iterates[-1].update(stop=res.reason, projected_S=stop.projected if res.converged else 0.0)
             its += res.iterations
             gits += res.gmres_total
             if not res.converged:
@@ -173,7 +182,7 @@ def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: 
                 say("  " + msg)
                 if cuts > max_cuts:
                     log.append(f"step {step}: gave up after {max_cuts} dt cuts")
-                    return TwoPhaseRun(prm, disc, rows, profiles, x, log, completed=False)
+                    return TwoPhaseRun(prm, disc, rows, profiles, x, log, completed=False, iterates=iterates)
                 dt *= 0.5
                 continue
             if est is not None:
@@ -200,7 +209,32 @@ def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: 
         say(f"  step {step:4d} t = {row.t_years:9.4g} y | Newton {its:3d}" + (f" GMRES {gits:4d}" if gits else "")
             + f" | gas to {row.gas_end_m:6.1f} m | P(0) = {row.P_0_Pa / 1e6:.4f} MPa, Pg(0) = {row.Pg_0_Pa / 1e6:.4f} MPa"
             + (f" | {cuts} dt cuts" if cuts else ""))
-    return TwoPhaseRun(prm, disc, rows, profiles, x, log)
+    return TwoPhaseRun(prm, disc, rows, profiles, x, log, iterates=iterates)
+
+
+def predictor(prm: TwoPhaseParams, x, x_old, ratio: float) -> np.ndarray:
+    """Linear extrapolation x + ratio (x - x_old) (ratio = dt / dt_prev), S clipped to [S_lr, 1], chi to >= 0."""
+    guess = x + (x - x_old) * ratio
+    guess[0::3] = np.clip(guess[0::3], prm.s_lr, 1.0)
+    guess[2::3] = np.maximum(guess[2::3], 0.0)
+    return guess
+
+
+def _iterate_logger(iterates: list, est: TwoPhaseEstimator, step: int, t_years: float, dt_years: float):
+    """The loop's callback that appends one ITERATE_COLUMNS row per Newton iterate k >= 1 (``est.last``: the
+    components of the iterate the linear solver accepted)."""
+
+    def record(rec):
+        comp = est.last
+        if rec.k == 0 or comp is None:
+            return
+        disc = np.maximum(comp.eta_sp, comp.eta_tm)
+        iterates.append(dict(step=step, t_years=t_years, dt_years=dt_years, k=rec.k,
+                             gmres_its=getattr(rec, "gmres_its", 0), gmres_accepted=getattr(rec, "gmres_accepted", 0),
+                             res=rec.res, **comp.row(), ratio_w=float(comp.eta_lin[0] / disc[0]),
+                             ratio_h=float(comp.eta_lin[1] / disc[1]), stop="", projected_S=0.0))
+
+    return record
 
 
 def _boundary_outflow(disc: TwoPhaseFV, x) -> np.ndarray:
