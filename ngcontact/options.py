@@ -33,8 +33,8 @@ __all__ = ["RunOptions", "AdaptiveOptions", "NEWTON_MODES", "MULTIGRID_NEWTON", 
 
 #: Newton linear solves: direct (sparse factorizations), gmres (GMRES + ILU to 2e-12: the "exact" mode of
 #: [JSC20]), inexact (GMRES with a forcing term), adaptive (GMRES stopped by the estimators, [JSC20]),
-#: multigrid (CG + truncated multigrid to a tenth of the Newton tolerance), multigrid-inexact (the same
-#: with a forcing term; both need nested P1 levels, :mod:`ngcontact.newton.multigrid`)
+#: multigrid (CG + multigrid to a tenth of the Newton tolerance: truncated geometric multigrid on nested P1
+#: levels, else algebraic multigrid), multigrid-inexact (the same with a forcing term; :mod:`ngcontact.newton.multigrid`)
 NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive", "multigrid", "multigrid-inexact")
 #: the modes of :class:`~ngcontact.newton.MultigridSolve`
 MULTIGRID_NEWTON = {"multigrid": "exact", "multigrid-inexact": "inexact"}
@@ -134,8 +134,8 @@ class RunOptions:
             bad("adaptive", f"False for disc {self.disc!r} (estimators exist for {_estimable()})")
         if self.newton in GMRES_NEWTON and not estimable:
             bad("newton", f"'direct' for disc {self.disc!r} (the GMRES modes are implemented for {_estimable()})")
-        if self.newton in MULTIGRID_NEWTON and (self.disc != "fem" or self.order != 1):
-            bad("newton", f"'direct' for disc {self.disc!r} order {self.order} (multigrid: fem order 1 on nested meshes)")
+        if self.newton in MULTIGRID_NEWTON and self.disc != "fem":
+            bad("newton", f"'direct' for disc {self.disc!r} (the multigrid modes are implemented for fem)")
         if self.newton_stop not in ("residual", "balanced"):
             bad("newton_stop", "'residual' or 'balanced'")
         if self.newton_stop == "balanced" and self.newton in GMRES_NEWTON:

@@ -13,13 +13,16 @@ step does not keep (Kornhuber's truncated multigrid, here in Galerkin form):
 
 so every coarse correction is a correction of the reduced problem: it never moves a fixed
 unknown, and near the free boundary the coarse functions see the contact exactly.  The
-V-cycle uses a Chebyshev polynomial in D^{-1} A as pre- and post-smoother (the same polynomial:
-the cycle is a symmetric positive definite operator, a valid CG preconditioner) and a sparse
-Cholesky factorization on the coarsest level.  Everything is sparse products and sparse
-matrix-vector products (no Python loop over unknowns).
+V-cycle smooths with Gauss-Seidel (forward before, backward after the coarse correction: the
+cycle is a symmetric positive definite operator, a valid CG preconditioner; pyamg's compiled
+kernel) or with a Chebyshev polynomial in D^{-1} A (the same before and after; numpy only), and
+factorizes the coarsest level.  Set-up is sparse products, the cycle sparse matrix-vector products
+and the compiled sweeps (no Python loop over unknowns).
 
 :func:`p1_prolongation` builds P_l from the parent table of structured nested meshes; the
-hierarchy of a run is kept by the discretizations (``mg_prolongations``).
+hierarchy of a run is kept by the discretizations (``mg_prolongations``).  Where there is no
+nested hierarchy, :class:`AlgebraicMultigrid` (classical Ruge-Stueben AMG of pyamg built on the
+reduced matrix itself) is the preconditioner.
 """
 from __future__ import annotations
 
@@ -33,7 +36,10 @@ import scipy.sparse as sp
 
 from .linalg import SPDSolver
 
-__all__ = ["Multigrid", "MultigridLevel", "p1_prolongation", "field_prolongation"]
+__all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "SMOOTHERS", "p1_prolongation", "field_prolongation"]
+
+#: V-cycle smoothers of :class:`Multigrid`
+SMOOTHERS = ("gauss-seidel", "chebyshev")
 
 
 def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_interior: np.ndarray,
@@ -87,14 +93,21 @@ class Multigrid:
 
     ``prolongations``: P_1..P_L of the unconstrained unknowns, coarse to fine (P_L maps level L-1 to
     the unknowns of ``keep``'s length); ``keep``: the unknowns of A among them (None: all).
-    ``degree``: Chebyshev smoothing steps before and after the coarse correction; ``ratio``: the
-    smoother damps the part [lmax / ratio, lmax] of the spectrum of D^-1 A.
+    ``smoother``: one of :data:`SMOOTHERS`; ``degree``: its sweeps (Gauss-Seidel) or steps (Chebyshev)
+    before and after the coarse correction; ``ratio``: the Chebyshev smoother damps the part
+    [lmax / ratio, lmax] of the spectrum of D^-1 A.
     """
 
     def __init__(self, A: sp.csr_matrix, prolongations: Sequence[sp.csr_matrix], keep: Optional[np.ndarray] = None,
-                 *, degree: int = 2, ratio: float = 8.0, solver: str = "sparsecholesky"):
+                 *, degree: int = 1, ratio: float = 8.0, solver: str = "sparsecholesky", smoother: str = "gauss-seidel"):
+        if smoother not in SMOOTHERS:
+            raise ValueError(f"smoother must be one of {SMOOTHERS}, got {smoother!r}")
         t0 = time.perf_counter()
-        self.degree, self.ratio, self.solver = int(degree), float(ratio), solver
+        self.degree, self.ratio, self.solver, self.smoother = int(degree), float(ratio), solver, smoother
+        if smoother == "gauss-seidel":  # pyamg's compiled sweep (imported here: half a second)
+            from pyamg.relaxation.relaxation import gauss_seidel
+
+            self._gauss_seidel = gauss_seidel
         A = A.tocsr()
         Ps = list(prolongations)
         levels: List[MultigridLevel] = []
@@ -122,7 +135,7 @@ class Multigrid:
         t0 = time.perf_counter()
         P_full, used = self._finest
         if P_full is None:
-            return Multigrid(A, (), degree=self.degree, ratio=self.ratio, solver=self.solver)
+            return Multigrid(A, (), degree=self.degree, ratio=self.ratio, solver=self.solver, smoother=self.smoother)
         out = copy.copy(self)
         P = (P_full[keep] if keep is not None else P_full)[:, used].tocsr()
         out.levels = [_level(A.tocsr(), P)] + self.levels[1:]
@@ -160,6 +173,13 @@ class Multigrid:
         lev = self.levels[j]
         if lev.P is None:
             return self.coarse.solve(b)
+        if self.smoother == "gauss-seidel":
+            x = np.zeros_like(b)
+            self._gauss_seidel(lev.A, x, b, iterations=self.degree, sweep="forward")
+            r = b - lev.A @ x
+            x += lev.P @ self._cycle(j + 1, lev.P.T @ r)
+            self._gauss_seidel(lev.A, x, b, iterations=self.degree, sweep="backward")
+            return x
         x = self._smooth(lev, None, b)
         r = b - lev.A @ x
         x += lev.P @ self._cycle(j + 1, lev.P.T @ r)
@@ -168,3 +188,28 @@ class Multigrid:
     def __call__(self, r: np.ndarray) -> np.ndarray:
         """One V-cycle applied to ``r`` from a zero start: z ~ A^-1 r."""
         return self._cycle(0, np.asarray(r, dtype=float))
+
+
+class AlgebraicMultigrid:
+    """Ruge-Stueben AMG V-cycle (pyamg, Gauss-Seidel smoothing) of one reduced matrix: the preconditioner of
+    the multigrid Newton modes where the mesh has no nested hierarchy.  Same interface as :class:`Multigrid`."""
+
+    def __init__(self, A: sp.csr_matrix):
+        import pyamg
+
+        t0 = time.perf_counter()
+        self._ml = pyamg.ruge_stuben_solver(sp.csr_matrix(A))
+        self._M = self._ml.aspreconditioner(cycle="V")
+        self.levels = self._ml.levels
+        self.time_setup = time.perf_counter() - t0
+
+    @property
+    def sizes(self) -> List[int]:
+        return [lev.A.shape[0] for lev in self.levels]
+
+    def updated(self, A: sp.csr_matrix, keep: Optional[np.ndarray]) -> "AlgebraicMultigrid":
+        """A new hierarchy for ``A`` (the algebraic coarsening depends on the whole matrix)."""
+        return AlgebraicMultigrid(A)
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        return self._M @ np.asarray(r, dtype=float)

@@ -90,9 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--newton", choices=["direct", "gmres", "inexact", "adaptive", "multigrid", "multigrid-inexact"],
                    help="Newton linear solves: direct (sparse factorization, default), gmres (GMRES with ILU to "
                         "||R||/||B|| <= 2e-12), inexact (GMRES with a forcing term), adaptive (GMRES stopped by the "
-                        "estimators); the GMRES modes: fem only; multigrid (CG + truncated geometric multigrid to a "
-                        "tenth of the Newton tolerance), multigrid-inexact (the same with a forcing term): fem P1 "
-                        "on structured nested meshes, the coarsest level is factorized")
+                        "estimators); the GMRES modes: fem only; multigrid (CG + multigrid to a tenth of the Newton "
+                        "tolerance: truncated geometric multigrid on nested P1 levels of the box domains, else "
+                        "algebraic multigrid; small levels are factorized), multigrid-inexact (the same with a "
+                        "forcing term): fem")
     r.add_argument("--gamma-alg", type=float, dest="gamma_alg",
                    help="adaptive: stop GMRES when eta_alg <= GAMMA_ALG max(eta_disc, eta_lin), in (0, 1) (default 0.3)")
     r.add_argument("--gamma-lin", type=float, dest="gamma_lin",

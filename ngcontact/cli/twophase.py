@@ -104,5 +104,6 @@ def cmd_run_twophase(scene, args, argv) -> int:
           f"{q['P_peak_years']:g} y; Pg peak {q['Pg_peak_Pa'] / 1e6:.4f} MPa at {q['Pg_peak_years']:g} y; "
           f"gas gone {q['gas_gone_years']} y")
     print(f"  max mass-balance defects: water {q['max_water_defect_rel']:.1e}, H2 {q['max_h2_defect_rel']:.1e} (relative)")
-    print(f"outputs: {directory.path}/ (steps.csv, profiles.csv, summary.json" + ("" if args.no_plots else ", *.png") + ")")
+    listed = ", ".join(n for n in files if n.endswith((".csv", ".json"))) + ("" if args.no_plots else ", *.png")
+    print(f"outputs: {directory.path}/ ({listed})")
     return 0

@@ -186,6 +186,7 @@ def multigrid_columns(sol) -> dict:
     """history.csv columns of the multigrid Newton modes."""
     h = sol.history[1:]
     return {"cg_its": sum(r.pcg_its for r in h), "mg_levels": max((r.mg_levels for r in h), default=0),
+            "mg_algebraic": int(any(r.amg for r in h)),
             "mg_builds": sum(r.mg_rebuilt == 1 for r in h), "mg_updates": sum(r.mg_rebuilt == 2 for r in h),
             "time_mg_setup_s": sum(r.time_mg_setup for r in h)}
 

@@ -1,23 +1,27 @@
-r"""Linear-solve strategy: PCG with truncated geometric multigrid on the reduced Newton system.
+r"""Linear-solve strategy: PCG with multigrid on the reduced Newton system.
 
 Step k solves the reduced SPD system A z = b of
 :meth:`~ngcontact.algebra.system.ComplementaritySystem.linearize` by conjugate gradients,
-preconditioned with one V-cycle of :class:`~ngcontact.algebra.multigrid.Multigrid` (coarse
-spaces truncated on the unknowns the step fixes), warm-started from X^{k-1}.  Its residual is the
-membrane part of the Newton residual at the new iterate (:class:`~.linear.KrylovSolve` explains
-why), so the stopping tests are in the units of the Newton loop's ||Phi|| / ||F||:
+preconditioned with one V-cycle, warm-started from X^{k-1}: the truncated geometric multigrid
+:class:`~ngcontact.algebra.multigrid.Multigrid` on the nested hierarchy of the run's levels
+(coarse spaces cut off on the unknowns the step fixes), or, on a mesh without one and with at
+least ``amg_min_size`` reduced unknowns, algebraic multigrid
+(:class:`~ngcontact.algebra.multigrid.AlgebraicMultigrid`); smaller systems are factorized.
+The CG residual is the membrane part of the Newton residual at the new iterate
+(:class:`~.linear.KrylovSolve` explains why), so the stopping tests are in the units of the
+Newton loop's ||Phi|| / ||F||:
 
 * ``exact``: ||b - A z|| <= ``accuracy`` tol ||F|| (tol: the Newton tolerance): a tenth of what the
   Newton test allows, so the iterates are those of the direct solves up to that residual;
 * ``inexact``: ||b - A z|| <= max(eta_k ||b - A z^0||, ``accuracy`` tol ||F||) with the forcing term
   eta_k = min(||Phi(X^{k-1})|| / ||F||, ``forcing_max``).
 
-The multigrid hierarchy is reused while the row classes of the steps do not change (the last
-Newton-min step, which confirms the active set, then costs a few CG iterations); when at most
+The hierarchy is reused while the row classes of the steps do not change (the last Newton-min
+step, which confirms the active set, then costs a few CG iterations); when at most
 ``update_fraction`` of the reduced unknowns changed class, only its finest level is rebuilt
-(:meth:`~ngcontact.algebra.multigrid.Multigrid.updated`), otherwise the whole hierarchy.  Without a hierarchy (the coarsest level of a nested run,
-a discretization without nested P1 prolongations) or when PCG does not reach its target in
-``maxiter`` iterations, the step is factorized (recorded in ``linear_path``).
+(:meth:`~ngcontact.algebra.multigrid.Multigrid.updated`; the algebraic one is rebuilt), otherwise
+the whole hierarchy.  When PCG does not reach its target in ``maxiter`` iterations the step is
+factorized (recorded in ``linear_path``).
 """
 from __future__ import annotations
 
@@ -28,7 +32,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from ..algebra.linalg import pcg
-from ..algebra.multigrid import Multigrid
+from ..algebra.multigrid import SMOOTHERS, AlgebraicMultigrid, Multigrid
 from ..algebra.system import LINEAR_PATHS
 from .base import IterationRecord, option_error
 from .linear import Trial
@@ -44,6 +48,7 @@ class MultigridIterationRecord(IterationRecord):
 
     cg_cum: int = 0               # CG iterations cumulated over the steps of this solve
     mg_levels: int = 0            # levels of the V-cycle (0: factorized)
+    amg: int = 0                  # 1: algebraic multigrid (no nested hierarchy)
     mg_rebuilt: int = 0           # 0 hierarchy reused, 1 (re)built, 2 finest level updated (few rows changed)
     time_mg_setup: float = 0.0    # Galerkin products and coarsest factorization of this step
 
@@ -61,8 +66,10 @@ class MultigridSolve:
     tol: float = 1e-10
     accuracy: float = 0.1
     forcing_max: float = 0.1
-    degree: int = 2
+    smoother: str = "gauss-seidel"
+    degree: int = 1
     ratio: float = 8.0
+    amg_min_size: int = 20000
     maxiter: int = 100
     update_fraction: float = 0.05
     prolongations: Tuple = ()
@@ -75,7 +82,9 @@ class MultigridSolve:
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 < v < 1):
                 raise option_error(name, v, "a number in (0, 1)")
-        for name, lo in (("degree", 1), ("maxiter", 1)):
+        if self.smoother not in SMOOTHERS:
+            raise option_error("smoother", self.smoother, f"one of {SMOOTHERS}")
+        for name, lo in (("degree", 1), ("maxiter", 1), ("amg_min_size", 1)):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, int) and v >= lo):
                 raise option_error(name, v, "a positive integer")
@@ -108,8 +117,12 @@ class _MultigridSession:
                 self._rows = tuple(np.array(a, copy=True) for a in rows)
                 return self.mg, 2
         self.mg = None  # free the old hierarchy first
-        self.mg = Multigrid(lin.A, self.opt.prolongations, lin.keep, degree=self.opt.degree, ratio=self.opt.ratio,
-                            solver=self.system.solver)
+        opt = self.opt
+        if opt.prolongations:
+            self.mg = Multigrid(lin.A, opt.prolongations, lin.keep, degree=opt.degree, ratio=opt.ratio,
+                                solver=self.system.solver, smoother=opt.smoother)
+        else:
+            self.mg = AlgebraicMultigrid(lin.A)
         self._rows = tuple(np.array(a, copy=True) for a in rows)
         return self.mg, 1
 
@@ -120,9 +133,10 @@ class _MultigridSession:
         floor = opt.accuracy * opt.tol * system.scale()  # a tenth of the Newton test's ||Phi||
         fields = dict(linear_size=lin.size, mg_levels=0, mg_rebuilt=0, time_mg_setup=0.0, pcg_its=0)
         z = None
-        if opt.prolongations:
+        if opt.prolongations or lin.size >= opt.amg_min_size:
             mg, how = self._hierarchy(lin)
-            fields.update(mg_levels=len(mg.levels), mg_rebuilt=how, time_mg_setup=mg.time_setup if how else 0.0)
+            fields.update(mg_levels=len(mg.levels), mg_rebuilt=how, time_mg_setup=mg.time_setup if how else 0.0,
+                          amg=int(isinstance(mg, AlgebraicMultigrid)))
             z0 = lin.restrict(x)
             target = floor
             if opt.mode == "inexact":

@@ -66,7 +66,9 @@ linear_size         largest linear system solved in a Newton step (reduced SPD /
 gmres_its           --newton gmres|inexact|adaptive: GMRES iterations, all Newton steps
                     (adaptive: including the nu look-ahead steps of sigma_alg)
 cg_its              --newton multigrid|multigrid-inexact: CG iterations, all Newton steps
-mg_levels           levels of the multigrid V-cycle (0: no hierarchy, every step factorized)
+mg_levels           levels of the multigrid V-cycle (0: every step factorized: a small level
+                    without a nested hierarchy)
+mg_algebraic        1: algebraic multigrid (the mesh has no nested hierarchy), 0: geometric
 mg_builds           Newton steps that built the whole hierarchy
 mg_updates          Newton steps that rebuilt only its finest level (few rows changed class; the
                     other steps reused it unchanged)
@@ -116,7 +118,7 @@ newton.csv: one row per (level, time step n if any, iteration k) with the key co
 n_active, n_changed, step, time_linear, time_step, linear_size, linear_path (0 fresh
 factorization, 1 PCG preconditioned by an earlier step's factorization, 2 PCG gave up and
 the step was factorized, 3 PCG + truncated multigrid), pcg_its (see :class:`ngcontact.newton.IterationRecord`);
-with --newton multigrid|multigrid-inexact also cg_cum, mg_levels, mg_rebuilt, time_mg_setup
+with --newton multigrid|multigrid-inexact also cg_cum, mg_levels, amg, mg_rebuilt, time_mg_setup
 (:class:`ngcontact.newton.MultigridIterationRecord`); with the GMRES modes also
 gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
 3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),

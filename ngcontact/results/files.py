@@ -21,7 +21,7 @@ HISTORY_COLUMNS = [
     "err_jump", "newton_its", "newton_converged", "res_final", "certified", "cert_penetration", "cert_negativity",
     "cert_slackness", "cert_tol", "newton_remedies", "newton_balanced",
     "eps_lin_final", "eps_disc_final", "active_nodes", "linear_size",
-    "cg_its", "mg_levels", "mg_builds", "mg_updates", "time_mg_setup_s",
+    "cg_its", "mg_levels", "mg_algebraic", "mg_builds", "mg_updates", "time_mg_setup_s",
     "gmres_its", "gmres_max_step", "gmres_first_step", "n_estimates", "time_estimate_newton_s",
     "eta_disc_final", "eta_lin_final", "eta_alg_final", "gap_min", "lam_min",
     "product_max", "time_mesh_s", "time_mark_s", "time_assembly_s", "time_prolong_s", "time_solve_s", "time_linear_s",
