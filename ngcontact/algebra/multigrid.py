@@ -40,6 +40,8 @@ __all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "SMOOTHERS", "p1
 
 #: V-cycle smoothers of :class:`Multigrid`
 SMOOTHERS = ("gauss-seidel", "chebyshev")
+#: coarsest levels up to this size are factorized densely (a sparse factorization's set-up costs more there)
+DENSE_COARSE = 1000
 
 
 def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_interior: np.ndarray,
@@ -125,7 +127,7 @@ class Multigrid:
             P = Ps[j - 1][used] if j > 0 else None
         levels.append(MultigridLevel(A, None))
         self.levels = levels  # fine first
-        self.coarse = SPDSolver(A, solver)
+        self.coarse = _DenseCholesky(A) if A.shape[0] <= DENSE_COARSE else SPDSolver(A, solver)
         self.time_setup = time.perf_counter() - t0
 
     def updated(self, A: sp.csr_matrix, keep: Optional[np.ndarray]) -> "Multigrid":
@@ -188,6 +190,20 @@ class Multigrid:
     def __call__(self, r: np.ndarray) -> np.ndarray:
         """One V-cycle applied to ``r`` from a zero start: z ~ A^-1 r."""
         return self._cycle(0, np.asarray(r, dtype=float))
+
+
+class _DenseCholesky:
+    """Dense Cholesky factorization of a small SPD matrix (the coarsest level)."""
+
+    def __init__(self, A: sp.spmatrix):
+        from scipy.linalg import cho_factor
+
+        self._c = cho_factor(A.toarray()) if A.shape[0] else None
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        from scipy.linalg import cho_solve
+
+        return cho_solve(self._c, b) if self._c is not None else np.zeros(0)
 
 
 class AlgebraicMultigrid:
