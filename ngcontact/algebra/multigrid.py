@@ -69,7 +69,9 @@ def _used_columns(P: sp.csr_matrix) -> np.ndarray:
     return np.flatnonzero(np.bincount(P.indices[P.data != 0], minlength=P.shape[1]))
 
 
-def _level(A: sp.csr_matrix, P: sp.csr_matrix) -> MultigridLevel:
+def _level(A: sp.csr_matrix, P: sp.csr_matrix, chebyshev: bool) -> MultigridLevel:
+    if not chebyshev:  # Gauss-Seidel needs A only
+        return MultigridLevel(A, P)
     dinv = 1.0 / A.diagonal()
     lmax = float((abs(A) @ np.ones(A.shape[0]) * dinv).max())  # Gershgorin bound of D^-1 A
     return MultigridLevel(A, P, dinv, lmax)
@@ -122,7 +124,7 @@ class Multigrid:
             if j == len(Ps) - 1:
                 self._finest = (Ps[-1], used)
             P = P[:, used].tocsr()
-            levels.append(_level(A, P))
+            levels.append(_level(A, P, smoother == "chebyshev"))
             A = (P.T @ (A @ P)).tocsr()
             P = Ps[j - 1][used] if j > 0 else None
         levels.append(MultigridLevel(A, None))
@@ -140,7 +142,7 @@ class Multigrid:
             return Multigrid(A, (), degree=self.degree, ratio=self.ratio, solver=self.solver, smoother=self.smoother)
         out = copy.copy(self)
         P = (P_full[keep] if keep is not None else P_full)[:, used].tocsr()
-        out.levels = [_level(A.tocsr(), P)] + self.levels[1:]
+        out.levels = [_level(A.tocsr(), P, self.smoother == "chebyshev")] + self.levels[1:]
         out.time_setup = time.perf_counter() - t0
         return out
 

@@ -388,7 +388,10 @@ class LinearizedStep:
     def A(self) -> sp.csr_matrix:
         """The reduced matrix Z^T Kaug Z (formed on first use)."""
         if self._A is None:
-            self._A = (self.Z.T @ self._Kaug @ self.Z).tocsr()
+            if self.slave_is_lo.any():  # slaves follow masters: Z merges columns
+                self._A = (self.Z.T @ self._Kaug @ self.Z).tocsr()
+            else:  # Z selects the kept unknowns
+                self._A = self._Kaug.tocsr()[self.keep][:, self.keep].tocsr()
         return self._A
 
     @property
