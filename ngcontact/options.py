@@ -90,6 +90,7 @@ class RunOptions:
     gamma_alg: float = 0.3  # adaptive: stop GMRES when eta_alg <= gamma_alg max(eta_disc, eta_lin)
     gamma_lin: float = 0.3  # adaptive: stop Newton when eta_lin <= gamma_lin eta_disc
     nu: int = 10  # adaptive: GMRES iterations between estimator evaluations
+    krylov: str = "gmres"  # GMRES modes: 'gmres' (GMRES + ILU, [JSC20]) or 'cg' (CG + multigrid)
     ilu_drop_tol: float = 1e-5  # GMRES modes: ILU threshold (scipy spilu drop_tol)
     ilu_fill: float = 8.0  # GMRES modes: ILU fill bound, nnz(L + U) <= ilu_fill nnz(A) (spilu fill_factor)
     newton_stop: str = "residual"  # direct Newton: 'residual' | 'balanced' (newton.stopping)
@@ -150,7 +151,7 @@ class RunOptions:
         set_(self, "newton_options", NewtonOptions(cfun=self.cfun, tol=self.tol, maxit=self.maxit))
         # built also for the other modes: it validates the GMRES fields, which they ignore
         krylov = KrylovSolve(mode=self.newton if self.newton in GMRES_NEWTON else "inexact", gamma_alg=self.gamma_alg,
-                             nu=self.nu, ilu_drop_tol=self.ilu_drop_tol, ilu_fill=self.ilu_fill)
+                             nu=self.nu, ilu_drop_tol=self.ilu_drop_tol, ilu_fill=self.ilu_fill, method=self.krylov)
         if self.newton in MULTIGRID_NEWTON:
             linear = MultigridSolve(mode=MULTIGRID_NEWTON[self.newton], tol=min(self.tol, 0.5))
         else:

@@ -158,3 +158,46 @@ def test_algebraic_multigrid_without_a_nested_hierarchy():
             assert b["mg_algebraic"] == 1 and b["cg_its"] > 0
     with pytest.raises(ValueError, match="option smoother"):
         MultigridSolve(smoother="jacobi")
+
+
+def test_cg_monitor_sees_true_residuals_and_can_stop():
+    import scipy.sparse as sp
+
+    from ngcontact.algebra.krylov import cg
+
+    n = 400
+    A = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n), format="csr") + sp.identity(n) * 1e-3
+    b = np.random.default_rng(4).standard_normal(n)
+    seen = []
+
+    def monitor(st):
+        seen.append(st.i)
+        assert st.res == pytest.approx(np.linalg.norm(b - A @ st.x) / np.linalg.norm(b), rel=1e-12)
+        assert np.allclose(st.r, b - A @ st.x)
+        return st.i >= 30
+
+    res = cg(A, b, nu=10, monitor=monitor, rtol=1e-14, maxiter=1000)
+    assert seen == [0, 10, 20, 30] and res.reason == "monitor" and res.iterations == 30
+    full = cg(A, b, rtol=1e-10, maxiter=2000)
+    assert full.converged and np.linalg.norm(b - A @ full.x) <= 1e-10 * np.linalg.norm(b)
+    # the monitor does not change the iterates (no restart at the checks)
+    plain = cg(A, b, rtol=0.0, maxiter=30)
+    assert np.allclose(plain.x, res.x, rtol=0, atol=1e-12 * np.abs(plain.x).max())
+
+
+@pytest.mark.parametrize("mode", ["gmres", "inexact", "adaptive"])
+def test_krylov_cg_multigrid_in_the_jsc20_modes(mode):
+    """--krylov cg: CG + multigrid (algebraic on the disk) in the three [JSC20] modes; the exact mode gives the
+    direct solution, the others converge within their stopping rules."""
+    sc = load_scene("disk")
+    direct = run_scene(sc, RunOptions(levels=2))
+    run = run_scene(sc, RunOptions(levels=2, newton=mode, krylov="cg"))
+    for a, b in zip(direct.rows, run.rows):
+        assert b["newton_converged"] == 1 and b["gmres_its"] > 0
+        if mode == "adaptive":  # stopped by the [JSC20] rule: linearization error <= gamma_lin x discretization
+            assert b["eta_lin_final"] <= 0.3 * b["eta_disc_final"]
+            assert b["err_energy"] <= 1.05 * a["err_energy"]
+        else:
+            assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8 if mode == "gmres" else 1e-3)
+    with pytest.raises(ValueError, match="option krylov"):
+        RunOptions(newton=mode, krylov="bicgstab")

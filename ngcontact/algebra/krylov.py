@@ -44,7 +44,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["ILU", "KrylovState", "KrylovResult", "gmres"]
+__all__ = ["ILU", "KrylovState", "KrylovResult", "gmres", "cg"]
 
 
 class ILU:
@@ -218,3 +218,75 @@ def gmres(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: fl
             # the cycle ended on the *estimated* residual but the computed one stays above the
             # tolerance: the attainable accuracy (round-off) is reached
             return finish(x, r, "stagnation")
+
+
+def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float = 1e-10, maxiter: int = 5000,
+       nu: int = 10, monitor: Optional[Callable[[KrylovState], bool]] = None) -> KrylovResult:
+    """Preconditioned conjugate gradients for SPD A (SPD preconditioner ``M.solve``), with the interface of
+    :func:`gmres`: ``monitor(KrylovState)`` at i = 0 and every ``nu`` iterations sees the iterate and its
+    true residual and may stop the iteration; the result's residuals are true residuals.
+
+    The recursively updated residual decides the tolerance test; at a stop it is recomputed, and if the
+    true residual is still above the tolerance the iteration continues from it (residual replacement) or,
+    when that does not halve it any more, stops with ``"stagnation"`` (round-off floor).  The monitor's
+    true residuals do not change the iteration (no restart: CG keeps its conjugacy).
+    """
+    t0 = time.perf_counter()
+    prec = (lambda v: v) if M is None else M.solve
+    x = np.zeros(len(b)) if x0 is None else np.array(x0, dtype=float)
+    bnorm = float(np.linalg.norm(b))
+    scale = bnorm if bnorm > 0 else 1.0
+    r = b - A @ x
+    rnorm = float(np.linalg.norm(r))
+    hist = [rnorm / scale]
+    i = 0
+
+    def finish(reason):
+        return KrylovResult(x, r, i, reason == "tolerance", reason, hist[-1], hist, time.perf_counter() - t0)
+
+    if monitor is not None and monitor(KrylovState(0, x, r, hist[0])):
+        return finish("monitor")
+    if rnorm <= rtol * scale or rnorm == 0.0:
+        return finish("tolerance")
+    z = prec(r)
+    p, rz = z.copy(), float(r @ z)
+    last_true = rnorm
+    while i < maxiter:
+        q = A @ p
+        pq = float(p @ q)
+        if not pq > 0.0:  # A or M not SPD on this vector (or p = 0): nothing more to gain
+            r = b - A @ x
+            hist[-1] = float(np.linalg.norm(r)) / scale
+            return finish("stagnation")
+        alpha = rz / pq
+        x += alpha * p
+        r -= alpha * q
+        i += 1
+        hist.append(float(np.linalg.norm(r)) / scale)
+        if monitor is not None and i % nu == 0:  # the monitor sees the true residual; CG goes on unchanged
+            r_true = b - A @ x
+            hist[-1] = float(np.linalg.norm(r_true)) / scale
+            if monitor(KrylovState(i, x, r_true, hist[-1])):
+                r = r_true
+                return finish("monitor")
+            if hist[-1] <= rtol:
+                r = r_true
+                return finish("tolerance")
+        elif hist[-1] <= rtol:
+            r = b - A @ x  # the recursion says converged: check the true residual
+            hist[-1] = float(np.linalg.norm(r)) / scale
+            if hist[-1] <= rtol:
+                return finish("tolerance")
+            if hist[-1] > 0.5 * last_true / scale:  # replacement no longer gains: round-off floor
+                return finish("stagnation")
+            last_true = hist[-1] * scale
+            z = prec(r)  # residual replacement: restart from the true residual
+            p, rz = z.copy(), float(r @ z)
+            continue
+        z = prec(r)
+        rz_new = float(r @ z)
+        p = z + (rz_new / rz) * p
+        rz = rz_new
+    r = b - A @ x
+    hist[-1] = float(np.linalg.norm(r)) / scale
+    return finish("tolerance" if hist[-1] <= rtol else "maxiter")

@@ -94,6 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "tolerance: truncated geometric multigrid on nested P1 levels of the box domains, else "
                         "algebraic multigrid; small levels are factorized), multigrid-inexact (the same with a "
                         "forcing term): fem")
+    r.add_argument("--krylov", choices=["gmres", "cg"],
+                   help="with --newton gmres|inexact|adaptive: the Krylov method, gmres (restarted GMRES + ILU, "
+                        "[JSC20], default) or cg (CG + multigrid: geometric on nested P1 levels, else algebraic)")
     r.add_argument("--gamma-alg", type=float, dest="gamma_alg",
                    help="adaptive: stop GMRES when eta_alg <= GAMMA_ALG max(eta_disc, eta_lin), in (0, 1) (default 0.3)")
     r.add_argument("--gamma-lin", type=float, dest="gamma_lin",

@@ -49,7 +49,7 @@ def _parse_flux_order(value, order: int):
 def _check_solver_options(args, newton: str) -> None:
     """Options of the GMRES Newton modes given with a mode that does not use them: a usage error
     (silently ignoring them would let a user believe they changed the run)."""
-    gmres = {"ilu_drop_tol": "--ilu-drop", "ilu_fill": "--ilu-fill"}
+    gmres = {"ilu_drop_tol": "--ilu-drop", "ilu_fill": "--ilu-fill", "krylov": "--krylov"}
     adaptive = {"gamma_alg": "--gamma-alg", "gamma_lin": "--gamma-lin", "nu": "--nu"}
     used = [flag for name, flag in gmres.items() if getattr(args, name, None) is not None]
     if used and newton not in ("gmres", "inexact", "adaptive"):
@@ -104,7 +104,7 @@ def _run_options(scene, args):
                  newton=args.newton, gamma_alg=args.gamma_alg, gamma_lin=args.gamma_lin, nu=args.nu,
                  decouple=True if args.decouple else None, newton_stop=args.newton_stop,
                  gamma_balance=args.gamma_balance, ilu_drop_tol=args.ilu_drop_tol, ilu_fill=args.ilu_fill,
-                 max_ndof=args.max_ndof, constraints=args.constraints)
+                 max_ndof=args.max_ndof, constraints=args.constraints, krylov=args.krylov)
     adaptive_opts = dict(marking=args.marking, theta=args.theta, target_eta=args.target_eta,
                          max_time=args.max_time, max_levels=args.max_levels)
     if not args.adaptive and any(v is not None for v in adaptive_opts.values()):

@@ -84,7 +84,7 @@ def newton_solve(disc, x0, y0, options, callback=None, warm: bool = False):
         solve = decoupled_newton if options.decouple else semismooth_newton
         return solve(disc.system, x0, y0, nopts, callback, stop=stop)
     estimator = LevelEstimator(disc, options.estimator_options) if options.newton == "adaptive" else None
-    linear = replace(options.linear, estimator=estimator)
+    linear = replace(options.linear, estimator=estimator, prolongations=tuple(getattr(disc, "mg_prolongations", ())))
     return semismooth_newton(disc.system, x0, y0, nopts, callback, linear=linear, stop=options.stop_options.rule())
 
 
@@ -111,7 +111,7 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     disc = Disc(problem, mesh, order=options.order, solver=options.solver, constraints=options.constraints, **kw)
     warm = previous is not None and options.start == "nested"
     t0 = time.perf_counter()
-    if options.newton in MULTIGRID_NEWTON:
+    if options.newton in MULTIGRID_NEWTON or (options.newton in GMRES_NEWTON and options.krylov == "cg"):
         disc.mg_prolongations = multigrid_hierarchy(disc, previous[0] if previous is not None else None)
     x0, y0 = disc.prolongate(*previous) if warm else disc.initial_guess(initial_guess)
     t1 = time.perf_counter()

@@ -39,16 +39,19 @@ from typing import List
 
 import numpy as np
 
-from ..algebra.krylov import ILU, KrylovState, gmres
+from ..algebra.krylov import ILU, KrylovState, cg, gmres
 from ..algebra.reuse import FactorReuse
 from ..algebra.system import LINEAR_PATHS
 from .base import IterationRecord, option_error
 from .stopping import stop_linear
 
 __all__ = ["DirectSolve", "KrylovSolve", "KrylovIterationRecord", "EstimatorRecord", "Trial", "KRYLOV_MODES",
+           "KRYLOV_METHODS",
            "algebraic_residual", "rhs_norm"]
 
 KRYLOV_MODES = ("gmres", "inexact", "adaptive")
+#: Krylov method and preconditioner: restarted GMRES + ILU ([JSC20]) or CG + multigrid (the reduced system is SPD)
+KRYLOV_METHODS = ("gmres", "cg")
 #: numeric codes of :attr:`KrylovResult.reason` in the records (newton.csv holds numbers only)
 GMRES_STOP = {"tolerance": 0, "monitor": 1, "maxiter": 2, "stagnation": 3}
 
@@ -121,7 +124,7 @@ class KrylovIterationRecord(IterationRecord):
     eta: float = float("nan")
     n_estimates: int = 0
     time_estimate: float = 0.0
-    time_ilu: float = 0.0
+    time_ilu: float = 0.0          # set-up of the preconditioner of this step (ILU, or multigrid with method cg)
     ilu_fill_ratio: float = float("nan")  # nnz(L + U) / nnz(A) of the ILU of this step
 
 
@@ -177,11 +180,15 @@ class KrylovSolve:
     forcing_max: float = 0.5     # inexact: cap of the forcing term eta_k
     log_estimators: bool = False  # gmres/inexact: also evaluate the estimators after every step
     estimator: object = None
+    method: str = "gmres"        # KRYLOV_METHODS: GMRES + ILU, or CG + multigrid
+    prolongations: tuple = ()    # cg: the nested hierarchy of the geometric multigrid (else algebraic multigrid)
     record_type = KrylovIterationRecord
 
     def __post_init__(self):
         if self.mode not in KRYLOV_MODES:
             raise option_error("newton", self.mode, f"one of {KRYLOV_MODES}")
+        if self.method not in KRYLOV_METHODS:
+            raise option_error("krylov", self.method, f"one of {KRYLOV_METHODS}")
         for name, lo in (("tol_alg", 0.0), ("gamma_alg", 0.0), ("forcing_max", 0.0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and lo < v < 1):
@@ -214,7 +221,8 @@ class _KrylovSession:
         lin = system.linearize(x, y, c, Ca, Cb)
         Bnorm = rhs_norm(system, x, y, c, Ca, Cb)
         bred = float(np.linalg.norm(lin.b)) or 1.0
-        M = ILU(lin.A, opt.ilu_drop_tol, opt.ilu_fill)
+        M = _MultigridPreconditioner(lin, opt.prolongations) if opt.method == "cg" else \
+            ILU(lin.A, opt.ilu_drop_tol, opt.ilu_fill)
         z0 = lin.restrict(x)
         self.t_est, self.n_est = 0.0, 0
         accepted = {}
@@ -253,8 +261,11 @@ class _KrylovSession:
                 return stop
 
         tl = time.perf_counter()
-        kr = gmres(lin.A, lin.b, z0, M, rtol=rtol, restart=opt.restart, maxiter=opt.max_gmres, nu=opt.nu,
-                   monitor=monitor)
+        if opt.method == "cg":
+            kr = cg(lin.A, lin.b, z0, M, rtol=rtol, maxiter=opt.max_gmres, nu=opt.nu, monitor=monitor)
+        else:
+            kr = gmres(lin.A, lin.b, z0, M, rtol=rtol, restart=opt.restart, maxiter=opt.max_gmres, nu=opt.nu,
+                       monitor=monitor)
         time_linear = time.perf_counter() - tl - self.t_est + M.time_setup
         self.gmres_cum += kr.iterations
         if accepted:
@@ -270,7 +281,7 @@ class _KrylovSession:
         return Trial(xf, yf, time_linear, dict(
             linear_size=lin.size, gmres_its=kr.iterations, gmres_cum=self.gmres_cum, gmres_accepted=i_acc,
             gmres_stop=GMRES_STOP[kr.reason], res_alg=res_alg, time_ilu=M.time_setup,
-            ilu_fill_ratio=M.nnz / max(lin.A.nnz, 1)))
+            ilu_fill_ratio=M.nnz / max(lin.A.nnz, 1) if M.nnz is not None else float("nan")))
 
     def after_step(self, k, x, y, step) -> dict:
         """Estimators of the accepted iterate: logging modes, a damped (fb) step, or an adaptive GMRES
@@ -284,8 +295,11 @@ class _KrylovSession:
                 r_alg = algebraic_residual(self.system, x, y, xp, yp, cp, Ca, Cb)
                 if self.kr.reason != "tolerance" or opt.mode == "inexact":
                     # sigma_alg from nu further iterations (diagnostic look-ahead, not counted)
-                    extra = gmres(self.lin.A, self.lin.b, self.kr.x, self.M, rtol=0.0, restart=opt.nu,
-                                  maxiter=opt.nu)
+                    if opt.method == "cg":
+                        extra = cg(self.lin.A, self.lin.b, self.kr.x, self.M, rtol=0.0, maxiter=opt.nu)
+                    else:
+                        extra = gmres(self.lin.A, self.lin.b, self.kr.x, self.M, rtol=0.0, restart=opt.nu,
+                                      maxiter=opt.nu)
                     xj, _ = self.lin.recover(extra.x)
                     dx = xj - x
             comp = opt.estimator.components(x, y, r_alg, dx)
@@ -303,3 +317,19 @@ class _KrylovSession:
 def _alg_terms(comp):
     terms = comp.terms or {}
     return float(terms.get("alg_flux", float("nan"))), float(terms.get("alg_res", float("nan")))
+
+
+class _MultigridPreconditioner:
+    """CG's preconditioner of a step: one V-cycle of the truncated geometric multigrid on ``prolongations``
+    (:class:`~ngcontact.algebra.multigrid.Multigrid`), or of algebraic multigrid without them."""
+
+    nnz = None  # no fill to report (the ILU's record field)
+
+    def __init__(self, lin, prolongations):
+        from ..algebra.multigrid import AlgebraicMultigrid, Multigrid
+
+        self.mg = Multigrid(lin.A, prolongations, lin.keep) if prolongations else AlgebraicMultigrid(lin.A)
+        self.time_setup = self.mg.time_setup
+
+    def solve(self, r):
+        return self.mg(r)
