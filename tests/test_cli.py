@@ -60,6 +60,8 @@ def test_user_scene_without_exact_solution(tmp_path):
     (["run", "test1", "--newton-stop", "balanced", "--gamma-balance", "5"], "option --gamma-balance must be"),
     (["run", "test1", "--ilu-drop", "1e-6"], "--ilu-drop need --newton gmres, inexact or adaptive"),
     (["run", "test1", "--newton", "inexact", "--nu", "5"], "--nu need --newton adaptive"),
+    (["run", "test1", "--newton", "multigrid", "--krylov", "cg"], "--krylov need --newton gmres, inexact or adaptive"),
+    (["run", "test1", "--disc", "hho", "--newton", "multigrid"], "option --newton must be 'direct' for disc 'hho'"),
     (["run", "test1", "--newton", "inexact", "--ilu-fill", "0.5"], "option --ilu-fill must be a number >= 1"),
     (["run", "test1", "--flux-order", "2"], "--flux-order needs --estimate, --adaptive or --newton adaptive"),
     (["run", "test1", "--estimate", "--order", "2", "--flux-order", "4"], "option --flux-order must be p = 2 or p + 1 = 3 (or omitted), got 4"),
