@@ -131,6 +131,12 @@ report: $(STAMP)
 stability: $(STAMP)
 	NGCONTACT_THREADS=1 $(PY) -m ngcontact.studies.stability results/STABILITY.md
 
+## stability-multigrid: the same cases with --newton multigrid (CG + multigrid in every Newton step, no
+##            estimates) -> results/stability/MULTIGRID.md
+.PHONY: stability-multigrid
+stability-multigrid: $(STAMP)
+	NGCONTACT_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.stability --newton multigrid results/stability/MULTIGRID.md
+
 ## bench: benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
 ##        -> results/bench/*.csv + results/bench/BENCH.md; estimator vs Newton time -> results/bench/ESTIMATE.md.
 ##        Not part of `make test`.

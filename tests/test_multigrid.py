@@ -201,3 +201,15 @@ def test_krylov_cg_multigrid_in_the_jsc20_modes(mode):
             assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8 if mode == "gmres" else 1e-3)
     with pytest.raises(ValueError, match="option krylov"):
         RunOptions(newton=mode, krylov="bicgstab")
+
+
+def test_multigrid_newton_with_tensions_twelve_orders_apart():
+    """mu1 / mu2 = 1e-12, Newton-FB: the 2-norm CG test alone leaves the soft membrane off by more than the exit
+    certificate allows (Newton then stops at its iteration cap); the test in units of u makes every level
+    converge with a valid certificate."""
+    from ngcontact.studies.stability import CASES, run_case
+
+    case = next(c for c in CASES if c.name == "ratio1e-12-p1-fb")
+    out = run_case(case, estimate=False, newton="multigrid")
+    assert out.status == "converged", out.reason
+    assert all(r["certified"] == 1 for r in out.rows) and out.rows[-1]["cg_its"] > 0
