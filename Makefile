@@ -137,8 +137,9 @@ stability: $(STAMP)
 stability-multigrid: $(STAMP)
 	NGCONTACT_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.stability --newton multigrid results/stability/MULTIGRID.md
 
-## bench: benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane; ~10 min, heavy)
-##        -> results/bench/*.csv + results/bench/BENCH.md; estimator vs Newton time -> results/bench/ESTIMATE.md.
+## bench: benchmarks (ex9 up to 1.05M unknowns, test1 ~1M nodes per membrane, each with sparse Cholesky and
+##        with CG + multigrid (-mg); ~20 min, heavy) -> results/bench/*.csv + results/bench/BENCH.md;
+##        estimator vs Newton time -> results/bench/ESTIMATE.md.
 ##        Not part of `make test`.
 .PHONY: bench
 bench: $(STAMP)
