@@ -93,14 +93,26 @@ def _rows(res):
     return [{k: r[k] for k in ("newton_its", "err_energy", "err_max_nodal", "active_nodes")} for r in res.rows]
 
 
+def _no_early_exit(opts):
+    object.__setattr__(opts, "linear", replace(opts.linear, early_exit=False))
+    return opts
+
+
 @pytest.mark.parametrize("scene,levels", [("ex9_obstacle", 4), ("test1", 4)])
 def test_multigrid_newton_matches_direct(scene, levels):
-    """Same Newton counts, active sets and errors as the sparse Cholesky steps; levels >= 1 solved by CG + MG."""
+    """Without the early exit: the Newton counts, active sets and errors of the sparse Cholesky steps; with it
+    (the default): the same converged solution, at most one Newton step more per level, fewer CG iterations.
+    Levels >= 1 solved by CG + MG."""
     sc = load_scene(scene)
     runs = {m: run_scene(sc, RunOptions(levels=levels, newton=m)) for m in ("direct", "multigrid")}
-    for a, b in zip(_rows(runs["direct"]), _rows(runs["multigrid"])):
+    runs["late"] = run_scene(sc, _no_early_exit(RunOptions(levels=levels, newton="multigrid")))
+    for a, b, c in zip(_rows(runs["direct"]), _rows(runs["late"]), _rows(runs["multigrid"])):
         assert a["newton_its"] == b["newton_its"] and a["active_nodes"] == b["active_nodes"]
         assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8)
+        assert c["active_nodes"] == a["active_nodes"] and c["newton_its"] <= a["newton_its"] + 1
+        assert c["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8)
+    assert sum(r["cg_its"] for r in runs["multigrid"].rows) < sum(r["cg_its"] for r in runs["late"].rows)
+    assert any(it.get("cg_early") for it in runs["multigrid"].iterations)
     mg = runs["multigrid"]
     assert mg.rows[0]["mg_levels"] == 0 and mg.rows[0]["cg_its"] == 0  # coarsest level: factorized
     for lev, row in enumerate(mg.rows[1:], start=1):
@@ -141,8 +153,8 @@ def test_multigrid_inexact_converges_to_the_same_solution():
 
 
 def test_algebraic_multigrid_without_a_nested_hierarchy():
-    """The netgen disk (no parent tables) at P1 and P2: CG + AMG above amg_min_size unknowns, the same Newton
-    counts and errors as the factorized steps."""
+    """The netgen disk (no parent tables) at P1 and P2: CG + AMG above amg_min_size unknowns, the converged
+    solution of the factorized steps."""
     from ngcontact.newton import MultigridSolve
 
     sc = load_scene("disk")
@@ -152,8 +164,10 @@ def test_algebraic_multigrid_without_a_nested_hierarchy():
         object.__setattr__(opts_small, "linear", replace(opts.linear, amg_min_size=1))
         direct = run_scene(sc, RunOptions(levels=2, order=order))
         amg = run_scene(sc, opts_small)
-        for a, b in zip(direct.rows, amg.rows):
-            assert a["newton_its"] == b["newton_its"]
+        for a, b in zip(direct.rows, amg.rows):  # the early exit may add a Newton step (see above); the count
+            # of active nodes is not compared: at P2 dozens of nodes have gap and multiplier both at round-off
+            # level (1e-14), and which side of g <= y they fall on is round-off
+            assert b["newton_its"] <= a["newton_its"] + 1
             assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8)
             assert b["mg_algebraic"] == 1 and b["cg_its"] > 0
     with pytest.raises(ValueError, match="option smoother"):

@@ -12,9 +12,14 @@ The CG residual is the membrane part of the Newton residual at the new iterate
 Newton loop's ||Phi|| / ||F||:
 
 * ``exact``: ||b - A z|| <= ``accuracy`` tol ||F|| (tol: the Newton tolerance): a tenth of what the
-  Newton test allows, so the iterates are those of the direct solves up to that residual, and the
-  Jacobi-scaled residual ||D^-1 (b - A z)||_inf <= ``accuracy`` tol ||x'||_inf (units of u: the soft
-  membrane of very different tensions);
+  Newton test allows, and the Jacobi-scaled residual ||D^-1 (b - A z)||_inf <= ``accuracy`` tol
+  ||x'||_inf (units of u: the soft membrane of very different tensions).  With ``early_exit`` (Newton-min
+  rows) CG stops before that as soon as the active set of its iterate differs from the one the step
+  solves for and the residual has dropped by ``early_reduction``: that step is not the last one, the
+  next solves a different system (in the first ``early_steps`` Newton steps only: a solve that needs
+  more is a hard case, e.g. tensions 1e12 apart, where inexact iterates made Newton-FB cycle).  The last step, which keeps the active set, is solved to the full
+  target, so the converged solution is that of the direct solves; without ``early_exit`` every iterate
+  is (up to the residual above);
 * ``inexact``: ||b - A z|| <= max(eta_k ||b - A z^0||, ``accuracy`` tol ||F||) with the forcing term
   eta_k = min(||Phi(X^{k-1})|| / ||F||, ``forcing_max``).
 
@@ -33,7 +38,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from ..algebra.linalg import pcg
+from ..algebra.krylov import cg
+from ..algebra.linalg import PCGResult, pcg
 from ..algebra.multigrid import SMOOTHERS, AlgebraicMultigrid, Multigrid
 from ..algebra.system import LINEAR_PATHS
 from .base import IterationRecord, option_error
@@ -51,6 +57,7 @@ class MultigridIterationRecord(IterationRecord):
     cg_cum: int = 0               # CG iterations cumulated over the steps of this solve
     mg_levels: int = 0            # levels of the V-cycle (0: factorized)
     amg: int = 0                  # 1: algebraic multigrid (no nested hierarchy)
+    cg_early: int = 0             # 1: CG stopped early, its iterate's active set differs (the next step re-solves)
     mg_rebuilt: int = 0           # 0 hierarchy reused, 1 (re)built, 2 finest level updated (few rows changed)
     time_mg_setup: float = 0.0    # Galerkin products and coarsest factorization of this step
 
@@ -74,6 +81,10 @@ class MultigridSolve:
     amg_min_size: int = 20000
     maxiter: int = 100
     update_fraction: float = 0.05
+    early_exit: bool = True       # exact mode, Newton-min rows: stop CG when the iterate's active set changes
+    early_reduction: float = 1e-3
+    early_every: int = 2
+    early_steps: int = 4          # ... in the first steps only (later ones: hard cases, solved exactly)
     prolongations: Tuple = ()
     record_type = MultigridIterationRecord
 
@@ -145,9 +156,14 @@ class _MultigridSession:
                 r0 = float(np.linalg.norm(lin.b - lin.A @ z0))
                 target = max(floor, min(res_prev, opt.forcing_max) * r0)
             bnorm = float(np.linalg.norm(lin.b)) or 1.0
-            res = pcg(lin.A, lin.b, mg, z0, rtol=target / bnorm, maxiter=opt.maxiter)
+            stopped_early = False
+            if opt.mode == "exact" and opt.early_exit and k <= opt.early_steps and not lin.mixed.any():
+                res, stopped_early = self._early_exit(lin, mg, z0, target, bnorm)
+            else:
+                res = pcg(lin.A, lin.b, mg, z0, rtol=target / bnorm, maxiter=opt.maxiter)
             its = res.iterations
-            if opt.mode == "exact":
+            fields["cg_early"] = int(stopped_early)
+            if opt.mode == "exact" and not stopped_early:
                 res, its = self._units_check(lin, mg, res, its, target, bnorm)
             fields["pcg_its"] = its
             self.cg_cum += its
@@ -161,6 +177,31 @@ class _MultigridSession:
         fields["cg_cum"] = self.cg_cum
         xn, yn = lin.recover(z)
         return Trial(xn, yn, time.perf_counter() - t0, fields)
+
+    def _early_exit(self, lin, mg, z0, target: float, bnorm: float):
+        """CG that stops as soon as its iterate's active set differs from the one this step solves for, once
+        the residual has dropped by ``early_reduction``: the next Newton-min step solves a different system
+        anyway (a Newton step that keeps the active set is solved to the full target).  Returns a
+        :class:`~ngcontact.algebra.linalg.PCGResult` and whether CG stopped early (else the usual tests
+        apply to its iterate)."""
+        opt, system = self.opt, self.system
+        r0 = float(np.linalg.norm(lin.b - lin.A @ z0))
+        stop = {}
+
+        def monitor(st):
+            if st.i == 0 or st.res * bnorm > opt.early_reduction * r0:
+                return False
+            xi, yi = lin.recover(st.x)
+            if np.array_equal(np.less_equal(*system.pair(xi, yi)), lin.eq):
+                return False
+            stop["i"] = st.i
+            return True
+
+        kr = cg(lin.A, lin.b, z0, _Callable(mg), rtol=target / bnorm, maxiter=opt.maxiter, nu=opt.early_every,
+                monitor=monitor)
+        if not stop:
+            return PCGResult(kr.x, kr.iterations, kr.converged, kr.res), False
+        return PCGResult(kr.x, kr.iterations, True, kr.res), True
 
     def _units_check(self, lin, mg, res, its: int, target: float, bnorm: float):
         """The exact mode's second test, in units of u: the Jacobi-scaled residual ||D^-1 (b - A z)||_inf <=
@@ -182,3 +223,10 @@ class _MultigridSession:
 
     def after_step(self, k, x, y, step) -> dict:
         return {}
+
+
+class _Callable:
+    """``solve(r)`` interface of :func:`~ngcontact.algebra.krylov.cg` for a callable preconditioner."""
+
+    def __init__(self, M):
+        self.solve = M
