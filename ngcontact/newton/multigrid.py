@@ -67,8 +67,8 @@ class MultigridSolve:
     """PCG + truncated multigrid on the reduced Newton system (module docstring).  Fields validated once.
 
     ``prolongations``: the nested P1 prolongations of the unconstrained unknowns, coarse to fine
-    (a tuple; empty: every step is factorized); ``tol``: the Newton tolerance the ``accuracy``
-    factor refers to.
+    (a tuple; empty: algebraic multigrid from ``amg_min_size`` reduced unknowns, below that the step
+    is factorized); ``tol``: the Newton tolerance the ``accuracy`` factor refers to.
     """
 
     mode: str = "exact"
@@ -91,13 +91,15 @@ class MultigridSolve:
     def __post_init__(self):
         if self.mode not in MULTIGRID_MODES:
             raise option_error("multigrid mode", self.mode, f"one of {MULTIGRID_MODES}")
-        for name in ("tol", "accuracy", "forcing_max", "update_fraction"):
+        for name in ("tol", "accuracy", "forcing_max", "update_fraction", "early_reduction"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 < v < 1):
                 raise option_error(name, v, "a number in (0, 1)")
         if self.smoother not in SMOOTHERS:
             raise option_error("smoother", self.smoother, f"one of {SMOOTHERS}")
-        for name, lo in (("degree", 1), ("maxiter", 1), ("amg_min_size", 1)):
+        if not isinstance(self.early_exit, bool):
+            raise option_error("early_exit", self.early_exit, "True or False")
+        for name, lo in (("degree", 1), ("maxiter", 1), ("amg_min_size", 1), ("early_every", 1), ("early_steps", 1)):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, int) and v >= lo):
                 raise option_error(name, v, "a positive integer")
