@@ -88,27 +88,53 @@ def friedrichs_constant(problem, mesh) -> float:
 class P0Dual:
     """||zeta|| for div zeta = rbar in P0, zeta in RT_0 free on the boundary: the RT_0
     mixed solution of -Lap phi = rbar, phi = 0, from the Crouzeix-Raviart solution
-    by Marini's formula zeta = -grad_h phi_CR + rbar/2 (x - x_K) (exact RT_0, Marini 1985)."""
+    by Marini's formula zeta = -grad_h phi_CR + rbar/2 (x - x_K) (exact RT_0, Marini 1985).
 
-    def __init__(self, mesh):
-        self.mesh = mesh
+    Built once per mesh: the CR stiffness A (factorized), the load map B (P0 -> CR, (rbar, v)) and, on
+    affine elements, J_K = ||x - x_K||_K^2; a norm then costs one solve:
+    ||zeta||^2 = phi^T A phi + sum_K rbar_K^2 J_K / 4 (grad_h phi is constant on K and (x - x_K, 1)_K = 0).
+    ``affine=False`` (curved elements): the load and ||zeta||^2 by quadrature of the functions themselves."""
+
+    def __init__(self, mesh, affine: bool = True):
+        self.mesh, self.affine = mesh, affine
         self._inv = None
 
-    def norm(self, rbar_values: np.ndarray) -> float:
+    def _setup(self):
+        from scipy.sparse import csr_matrix
+
         mesh = self.mesh
+        self.W = FESpace("nonconforming", mesh, dirichlet=DIRICHLET)
+        self.P0 = L2(mesh, order=0)
+        u, v = self.W.TnT()
+        self._a = BilinearForm(grad(u) * grad(v) * dx).Assemble()
+        self._inv = self._a.mat.Inverse(self.W.FreeDofs(), inverse="sparsecholesky")
+        load = BilinearForm(trialspace=self.P0, testspace=self.W)
+        load += self.P0.TrialFunction() * v * dx
+        load.Assemble()
+        self._B = csr_matrix(tuple(np.array(a) for a in load.mat.CSR()), shape=(self.W.ndof, self.P0.ndof))
+        self._A = csr_matrix(tuple(np.array(a) for a in self._a.mat.CSR()), shape=(self.W.ndof, self.W.ndof))
+        self.centroid = GridFunction(VectorL2(mesh, order=0))
+        self.centroid.Set(CoefficientFunction((x, y)))
+        d = CoefficientFunction((x, y)) - self.centroid
+        self._J = Integrate(d * d * dx, mesh, element_wise=True).NumPy().copy()
+        self._rhs = self._a.mat.CreateColVector()
+        self._phi = GridFunction(self.W)
+
+    def norm(self, rbar_values: np.ndarray) -> float:
         if self._inv is None:
-            self.W = FESpace("nonconforming", mesh, dirichlet=DIRICHLET)
-            u, v = self.W.TnT()
-            self._a = BilinearForm(grad(u) * grad(v) * dx).Assemble()
-            self._inv = self._a.mat.Inverse(self.W.FreeDofs(), inverse="sparsecholesky")
-            self.centroid = GridFunction(VectorL2(mesh, order=0))
-            self.centroid.Set(CoefficientFunction((x, y)))
-        rbar = GridFunction(L2(mesh, order=0))
+            self._setup()
+        rbar_values = np.asarray(rbar_values, dtype=float)
+        phi = self._phi
+        if self.affine:
+            self._rhs.FV().NumPy()[:] = self._B @ rbar_values
+            phi.vec.data = self._inv * self._rhs
+            pv = phi.vec.FV().NumPy()
+            return math.sqrt(max(float(pv @ (self._A @ pv)) + 0.25 * float((rbar_values ** 2 * self._J).sum()), 0.0))
+        rbar = GridFunction(self.P0)
         rbar.vec.FV().NumPy()[:] = rbar_values
-        phi = GridFunction(self.W)
         phi.vec.data = self._inv * LinearForm(rbar * self.W.TestFunction() * dx).Assemble().vec
         zeta = -grad(phi) + 0.5 * rbar * (CoefficientFunction((x, y)) - self.centroid)
-        return math.sqrt(max(Integrate(zeta * zeta * dx, mesh), 0.0))
+        return math.sqrt(max(Integrate(zeta * zeta * dx, self.mesh), 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,7 +169,7 @@ class Integrals:
         if "area" not in cache:
             cache["area"] = Integrate(CoefficientFunction(1.0) * dx, mesh, element_wise=True).NumPy().copy()
         if "dual" not in cache:
-            cache["dual"] = P0Dual(mesh)
+            cache["dual"] = P0Dual(mesh, affine=not dv.curved)
         bonus = dv.quad_bonus + 4 if options.quad_bonus is None else options.quad_bonus
         C_F = friedrichs_constant(dv.problem, mesh) if options.friedrichs is None else float(options.friedrichs)
         return cls(mesh=mesh, bonus=bonus, h=element_diameters(mesh), area=cache["area"], C_F=C_F,
