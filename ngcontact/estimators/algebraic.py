@@ -50,10 +50,10 @@ import math
 from typing import List, Optional
 
 import numpy as np
-from ngsolve import H1, L2, TRIG, GridFunction, Integrate, LinearForm, div, dx, grad
+from ngsolve import H1, L2, TRIG, BilinearForm, GridFunction, Integrate, LinearForm, div, dx, grad
 
 from ..domains import DIRICHLET
-from .flux import PatchData, equilibrate_all, flux_bonus, patch_regularization, patch_solver
+from .flux import PatchData, equilibrate_all, flux_bonus, patch_regularization, patch_solver, vertex_device_exact
 from .moments import vertex_moment_term, vertex_rule
 from .options import EstimatorOptions
 from .terms import Integrals
@@ -63,15 +63,24 @@ __all__ = ["algebraic_flux", "algebraic_correction_norm", "algebraic_terms", "et
 
 
 def _p1_data(dv: DiscretizationView):
-    """(V1, test function, interior-vertex mask, (psi_a, 1) by the vertex rule, vertex rule), cached per disc."""
+    """(V1, test function, interior-vertex mask, (psi_a, 1) by the vertex rule, vertex rule, S) with
+    S[a, j] = (grad phi_j, grad psi_a) (phi_j: the basis of ``dv.fes``; None on curved elements), cached per disc."""
     c = dv.cache
     if "p1" not in c:
+        from scipy.sparse import csr_matrix
+
         V1 = H1(dv.mesh, order=1, dirichlet=DIRICHLET)
         v = V1.TestFunction()
         free = np.array(list(V1.FreeDofs()), dtype=bool)
         rule = {TRIG: vertex_rule()}
         vol = LinearForm(v * dx(intrules=rule)).Assemble().vec.FV().NumPy().copy()
-        c["p1"] = (V1, v, free, vol, rule)
+        S = None
+        if not dv.curved:
+            form = BilinearForm(trialspace=dv.fes, testspace=V1)
+            form += grad(dv.fes.TrialFunction()) * grad(v) * dx
+            form.Assemble()
+            S = csr_matrix(tuple(np.array(a) for a in form.mat.CSR()), shape=(V1.ndof, dv.fes.ndof))
+        c["p1"] = (V1, v, free, vol, rule, S)
     return c["p1"]
 
 
@@ -101,19 +110,28 @@ def algebraic_flux(disc, dx_alg: np.ndarray, options: Optional[EstimatorOptions]
     mesh = dv.mesh
     ni = dv.n_interior
     dx_alg = np.asarray(dx_alg, dtype=float)
-    V1, v, free, vol, rule = _p1_data(dv)
+    V1, v, free, vol, rule, S = _p1_data(dv)
+    vertex = opts.batched and vertex_device_exact(dv, q)  # exact patch-constant sources, no assembly
     data = []
     for a, (name, mu) in enumerate(zip(dv.names, dv.mus)):
         d = dv.interior_function(dx_alg[a * ni:(a + 1) * ni], f"d_alg_{a + 1}")  # d_alpha,h, zero Dirichlet
-        mom = LinearForm(mu * grad(d) * grad(v) * dx).Assemble().vec.FV().NumPy()  # small: no TaskManager
-        g = GridFunction(V1, name="g_alg")
-        g.vec.FV().NumPy()[:] = np.where(free, mom / vol, 0.0)  # (g, psi_a) = mu (grad d, grad psi_a)
-        term = vertex_moment_term(mesh, g, q)
+        if dv.curved:  # the quadrature of the linear form (not polynomial on curved elements)
+            mom = LinearForm(mu * grad(d) * grad(v) * dx).Assemble().vec.FV().NumPy()  # small: no TaskManager
+        else:  # (g, psi_a) = mu (grad d, grad psi_a), exact
+            mom = mu * (S @ d.vec.FV().NumPy())
+        gv = np.where(free, mom / vol, 0.0)
+        source, vvals = None, None
+        if vertex:
+            vvals = [(gv[dv.element_vertices()], None)]
+        else:
+            g = GridFunction(V1, name="g_alg")
+            g.vec.FV().NumPy()[:] = gv
+            term = vertex_moment_term(mesh, g, q)
 
-        def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
-            return -term(w) * dx(intrules=rule)
+            def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
+                return -term(w) * dx(intrules=rule)
         data.append(PatchData(u=d, mu=mu, source=source, hessian=p > 1, bonus_intorder=flux_bonus(dv),
-                              name=f"sigma_alg_{name}"))
+                              name=f"sigma_alg_{name}", vertex_values=vvals))
     return equilibrate_all(mesh, q, data, regularization=patch_regularization(dv, opts.regularization),
                            solver=patch_solver(dv, q) if opts.batched else None)
 

@@ -293,16 +293,17 @@ def _disc_fluxes(sv: SolutionView, q: int, lam_p, lam_n, lam_hat, r_hat, use_p1:
             vterm, mterm = None, m
         data.append(m)
 
-        def source(w, fd=fd, vterm=vterm, mterm=mterm):
-            out = -fd.f * w * dx(intrules=rules["load"])
-            if vterm is not None:
-                out += -vterm(w) * vertex_dx
+        def source(w, vterm=vterm, mterm=mterm):
+            out = None if vterm is None else -vterm(w) * vertex_dx
             if mterm is not None:
-                out += -mterm * w * mass_dx
+                out = -mterm * w * mass_dx if out is None else out - mterm * w * mass_dx
             return out
-        patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=flux_bonus(dv),
-                                    name=f"sigma_disc_{fd.name}",
-                                    vertex_values=None if vvals is None else [(vvals, None)]))
+
+        def load(w, f=fd.f):  # the iterate-independent part: assembled once per load (.patches)
+            return -f * w * dx(intrules=rules["load"])
+        patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source if vterm is not None or mterm is not None else None,
+                                    hessian=p > 1, bonus_intorder=flux_bonus(dv), name=f"sigma_disc_{fd.name}",
+                                    vertex_values=None if vvals is None else [(vvals, None)], load=(fd.f, load)))
     sig_d = equilibrate_all(dv.mesh, q, patch_data, regularization=patch_regularization(dv, opts.regularization),
                             solver=patch_solver(dv, q) if opts.batched else None)
     return sig_d, data

@@ -187,7 +187,10 @@ class PatchData:
     with g_a|_K = vertex_values[K, i] for the local vertex i of K that is a (exact for every RT
     degree and on curved elements; the vertex device :func:`.moments.vertex_moment_term` is the
     ``PatchwiseSolve`` counterpart, exact for q <= 2 on affine elements), given as a list of
-    (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`.multipliers.ShapedContactMultiplier`)."""
+    (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`.multipliers.ShapedContactMultiplier`);
+    ``load``: a further source part ``(owner, w -> SumOfIntegrals)`` that depends only on ``owner`` (a load
+    CoefficientFunction whose values do not change while it is the same object), assembled once per owner
+    by the batched solver."""
 
     u: object
     mu: float
@@ -196,6 +199,7 @@ class PatchData:
     bonus_intorder: int = 0
     name: str = "sigma"
     vertex_values: Optional[object] = None
+    load: Optional[tuple] = None
 
 
 def _flux_terms(u, tau, w, mu, hessian: bool, bonus: int):
@@ -209,16 +213,17 @@ def _flux_terms(u, tau, w, mu, hessian: bool, bonus: int):
     return lf
 
 
-def _patch_rhs(X, d: PatchData, flux_part: bool = True):
+def _patch_rhs(X, d: PatchData, flux_part: bool = True, with_load: bool = True):
     """The right-hand side of the patch problems on X (every term is multiplied by psi_a):
     (s, tau) - (r, div tau) + <tau.n, m> = -(psi_a mu grad u, tau)   [mu constant]
     -(div s, w) - eps (r, w) = -(psi_a g, w) + (mu grad psi_a . grad u, w), with
     (grad psi_a . grad u, w)_K = -(psi_a, Lap u w + grad u . grad w)_K + <psi_a grad u . n, w>_dK.
-    ``flux_part=False``: only the source part (None if there is none)."""
+    ``flux_part=False``: only the source part (None if there is none); ``with_load=False``: without ``d.load``."""
     tau, w = X.TestFunction()[:2]  # X = V x Q x F (PatchwiseSolve) or V x Q (batched: no facet rows)
     lf = _flux_terms(d.u, tau, w, d.mu, d.hessian, d.bonus_intorder) if flux_part else None
-    if d.source is not None:
-        lf = d.source(w) if lf is None else lf + d.source(w)
+    for src in (d.source, d.load[1] if d.load is not None and with_load else None):
+        if src is not None:
+            lf = src(w) if lf is None else lf + src(w)
     return lf
 
 
@@ -263,10 +268,12 @@ def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver
     out = []
     if solver is not None:
         linear = [_flux_operator(solver, d) for d in data]
-        lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None) for d, lin in zip(data, linear)]
+        lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None, with_load=False) for d, lin in zip(data, linear)]
         vertex = [_vertex_terms(d) for d in data]
+        fixed = [None if d.load is None else (d.load[0], lambda hat, src=d.load[1]: _times(hat, src(solver.Y.TestFunction()[1])))
+                 for d in data]
         coefs = solver.solve([None if lf is None else (lambda hat, lf=lf: _times(hat, lf)) for lf in lfs], linear,
-                             vertex)
+                             vertex, fixed)
         for d, c in zip(data, coefs):
             sig = GridFunction(solver.X.components[0], name=d.name)
             sig.vec.FV().NumPy()[:] = c.ravel()

@@ -161,6 +161,7 @@ class PatchSolver:
         self.S_K = S_K
         self.A_II_inv = None  # formed from the third solve() on (as the patch inverses)
         self._ops = {}
+        self._fixed = {}
         self._inv_cache = {}
         self._calls = 0
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
@@ -263,7 +264,27 @@ class PatchSolver:
             S += z[:, :, None] * z[:, None, :]
         return S
 
-    def solve(self, lfs, linear=None, vertex=None) -> list:
+    def fixed_vectors(self, owner, lf_of_hat) -> np.ndarray:
+        """(3, Y.ndof): the assembled ``lf_of_hat(hat_i)``, kept while ``owner`` (the data the form is built of,
+        e.g. a load CoefficientFunction) is the same object; the last :attr:`FIXED_KEPT` owners are kept."""
+        hit = self._fixed.get(id(owner))
+        if hit is not None and hit[0] is owner:
+            return hit[1]
+        vecs = np.empty((3, self.Y.ndof))
+        with TaskManager():
+            for i, hat in enumerate(self.hats):
+                form = LinearForm(self.Y)
+                form += lf_of_hat(hat)
+                vecs[i] = form.Assemble().vec.FV().NumPy()
+        if len(self._fixed) >= self.FIXED_KEPT:
+            self._fixed.pop(next(iter(self._fixed)))
+        self._fixed[id(owner)] = (owner, vecs)  # the owner is referenced: its id stays unique
+        return vecs
+
+    #: owners of :meth:`fixed_vectors` kept (fields x a few data sets)
+    FIXED_KEPT = 8
+
+    def solve(self, lfs, linear=None, vertex=None, fixed=None) -> list:
         """Sums over the patches of the patch solutions, RT part, for several right-hand sides.
 
         Parameters
@@ -281,6 +302,9 @@ class PatchSolver:
             patch-constant sources of :mod:`.flux` (exact for every degree and on curved elements,
             with :meth:`vertex_mass` of that ``bonus``), or g_a|_K = values[K, i] shape if ``shape``
             (a CoefficientFunction) is not None (:meth:`shaped_mass`).
+        fixed : list of (tuple or None), optional
+            per field, a further right-hand side part ``(owner, lf_of_hat)`` assembled once per owner
+            (:meth:`fixed_vectors`; the iterate-independent data such as the load f).
 
         Returns
         -------
@@ -292,11 +316,13 @@ class PatchSolver:
         self._calls += 1
         b = np.zeros((nf, 3, ne, nI))
         linear = [None] * nf if linear is None else linear
+        fixed = [None] * nf if fixed is None else fixed
         with TaskManager():
-            for f, (lf_of_hat, lin) in enumerate(zip(lfs, linear)):
+            for f, (lf_of_hat, lin, fix) in enumerate(zip(lfs, linear, fixed)):
                 mats = self.operators(*lin[:3]) if lin is not None else None
+                kept = self.fixed_vectors(*fix) if fix is not None else None
                 for i, hat in enumerate(self.hats):
-                    vec = np.zeros(self.Y.ndof)
+                    vec = np.zeros(self.Y.ndof) if kept is None else kept[i].copy()
                     if lf_of_hat is not None:
                         form = LinearForm(self.Y)
                         form += lf_of_hat(hat)
