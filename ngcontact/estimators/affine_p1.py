@@ -37,8 +37,8 @@ __all__ = ["P1Arrays", "applies"]
 def applies(dv, opts, exact_bc: bool) -> bool:
     """Whether :class:`P1Arrays` computes the terms: P1 two-membrane problem on affine elements, RT_1
     disc fluxes, an RT degree <= 1 algebraic flux, exact Dirichlet data, batched patch solver, no
-    concentrated multiplier."""
-    return (dv.order == 1 and not dv.curved and dv.obstacle is None and opts.flux_degree(1) == 1
+    concentrated multiplier (and ``opts.closed_form``)."""
+    return (opts.closed_form and dv.order == 1 and not dv.curved and dv.obstacle is None and opts.flux_degree(1) == 1
             and opts.alg_flux_degree(1) <= 1 and exact_bc and opts.batched and not opts.concentrates(1))
 
 
@@ -113,7 +113,9 @@ class P1Arrays:
             self._rt[key] = (space, E, D)  # the space is kept alive: its id stays unique
         _, E, D = self._rt[key]
         c = np.asarray(sigma.vec.FV().NumPy()).reshape(self.mesh.ne, -1)
-        return np.einsum("kpdj,kj->kpd", E, c), np.einsum("kpj,kj->kp", D, c)
+        ne, nq = E.shape[:2]
+        return (np.matmul(E.reshape(ne, 2 * nq, -1), c[:, :, None]).reshape(ne, nq, 2),
+                np.matmul(D, c[:, :, None])[:, :, 0])
 
     # ------------------------------------------------------------ the load
     def load(self, f, load_order: int) -> dict:
@@ -174,18 +176,23 @@ class P1Arrays:
         """The ``parts`` of :func:`.algebraic.algebraic_terms` for P1 r^ and an RT_0/RT_1 sigma_alg (or None)."""
         def part(a):
             r = self.vertex_values(r_hat[a])
-            if sigma_alg is None:
-                rem = r - self.mean(r)[:, None]
-                return None, self.mean(r), self.mass(rem, rem)
-            sv, dsv = self.rt(sigma_alg[a])
-            rem = r - dsv
-            return float(self.norm2(sv).sum()), self.mean(rem), self.mass(rem, rem)
+            sa2 = None
+            if sigma_alg is not None:
+                sv, dsv = self.rt(sigma_alg[a])
+                r, sa2 = r - dsv, float(self.norm2(sv).sum())
+            return (sa2,) + self._mean_free(r)
         return part
 
     def defect_parts(self, delta):
         """The ``parts`` of :func:`.terms.defect_norm` for a P1 function."""
-        v = self.vertex_values(delta)
-        return self.mean(v), self.mass(v, v)
+        return self._mean_free(self.vertex_values(delta))
+
+    def _mean_free(self, v):
+        """(element means, ||v - mean_K v||_K^2) of a P1 function, without the cancellation of
+        ||v||^2 - |K| mean^2."""
+        m = self.mean(v)
+        d = v - m[:, None]
+        return m, self.mass(d, d)
 
     def grad_sq(self, c) -> np.ndarray:
         """||grad c||_K^2 of a P1 function."""

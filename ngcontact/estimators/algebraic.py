@@ -164,28 +164,27 @@ def algebraic_terms(ig: Integrals, fields, r_hat, sigma_alg=None, parts=None):
     r^ - div sigma_alg and the RT_0 bound of its element means.  ``sigma_alg`` None: the RT_0 mixed
     solution of div sigma_alg = Pi_0 r^ (one global Crouzeix-Raviart solve).  ``parts``: a -> (||sigma_alg||^2
     or None for the global solve, element means of r^ (sigma_alg None) or of rem = r^ - div sigma_alg,
-    ||rem||_K^2) computed elsewhere (:mod:`.affine_p1`)."""
+    ||rem - mean_K rem||_K^2) computed elsewhere (:mod:`.affine_p1`)."""
     mesh, h, area = ig.mesh, ig.h, ig.area
     fl2, loc2, mean2 = 0.0, 0.0, 0.0
     for a, (fd, r) in enumerate(zip(fields, r_hat)):
         mu = fd.mu
         if parts is not None:
-            sa2, mb, rem2 = parts(a)
+            sa2, mb, free2 = parts(a)
         elif sigma_alg is None:
             mb = ig.ew(r, dx) / area
             rem = r - _p0(mesh, mb)
-            sa2, rem2 = None, ig.ew(rem * rem)
+            sa2, free2 = None, ig.ew(rem * rem)
         else:
             sa = sigma_alg[a]
             sa2 = Integrate(sa * sa * ig.dxq, mesh)
             rem = r - div(sa)
-            mb, rem2 = ig.ew(rem, dx(bonus_intorder=ig.bonus + 8)) / area, ig.ew(rem * rem)
-        if sa2 is None:  # RT_0 mixed solution of div sigma = Pi_0 r^ (global CR solve); rem is mean-free
-            fl2 += ig.dual.norm(mb) ** 2 / mu
-            loc2 += float(((h / math.pi) ** 2 * np.maximum(rem2, 0.0)).sum()) / mu
-        else:
-            fl2 += max(sa2, 0.0) / mu
-            loc2 += float(((h / math.pi) ** 2 * np.maximum(rem2 - mb ** 2 * area, 0.0)).sum()) / mu
+            mb = ig.ew(rem, dx(bonus_intorder=ig.bonus + 8)) / area
+            free2 = ig.ew(rem * rem) - mb ** 2 * area
+        # sa2 None: the RT_0 mixed solution of div sigma = Pi_0 r^ (global CR solve); r^ - Pi_0 r^ is mean-free
+        fl2 += (ig.dual.norm(mb) ** 2 if sa2 is None else max(sa2, 0.0)) / mu
+        loc2 += float(((h / math.pi) ** 2 * np.maximum(free2, 0.0)).sum()) / mu
+        if sa2 is not None:
             mn = ig.C_F * math.sqrt(float((mb ** 2 * area).sum()))
             if mn > 0.0:
                 mn = min(mn, ig.dual.norm(mb))

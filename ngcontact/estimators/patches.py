@@ -347,7 +347,7 @@ class PatchSolver:
                 # every (i, K) pair belongs to exactly one patch: plain fancy-index addition
                 b[f, i, K, nV:] += kappa[:, None, None] * self.mass_Q[K]
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
-        g = -np.einsum("kif,ski->skf", self.W, b.reshape(nf * 3, ne, nI)).reshape(nf, 3, ne, nF3)
+        g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
         msum = np.zeros((nf, ne * nF3))
         for gi, G in enumerate(self.groups):
             m = G["m"]

@@ -227,9 +227,12 @@ def defect_norm(ig: Integrals, delta, ref: float, parts=None):
     """C_mu [(sum_K (h_K/pi)^2 ||delta - delta_K||_K^2)^{1/2} + ||zeta(delta_K)||]: bound of
     sup_z (delta, z1 - z2) / |||z||| (module doc), and the element parts (h_K/pi)^2 ||delta - delta_K||_K^2.
     The RT_0 solve is skipped when C_F ||delta_K|| is below 1e-3 ``ref``.  ``parts``: (element means,
-    ||delta||_K^2) computed elsewhere."""
-    dbar, sq = (ig.ew(delta) / ig.area, ig.ew(delta * delta)) if parts is None else parts
-    loc_K = (ig.h / math.pi) ** 2 * np.maximum(sq - dbar ** 2 * ig.area, 0.0)
+    ||delta - delta_K||_K^2) computed elsewhere."""
+    if parts is None:
+        dbar = ig.ew(delta) / ig.area
+        parts = dbar, ig.ew(delta * delta) - dbar ** 2 * ig.area
+    dbar, free2 = parts
+    loc_K = (ig.h / math.pi) ** 2 * np.maximum(free2, 0.0)
     dnorm = ig.C_F * math.sqrt(float((dbar ** 2 * ig.area).sum()))
     if dnorm > 1e-3 * max(ref, np.finfo(float).tiny):
         dnorm = min(dnorm, ig.dual.norm(dbar))
