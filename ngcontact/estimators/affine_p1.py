@@ -34,12 +34,16 @@ from .nonnegative import QuadratureArrays
 __all__ = ["P1Arrays", "applies"]
 
 
-def applies(dv, opts, exact_bc: bool) -> bool:
+def applies(dv, opts, exact_bc: bool, sigma_alg=None) -> bool:
     """Whether :class:`P1Arrays` computes the terms: P1 two-membrane problem on affine elements, RT_1
-    disc fluxes, an RT degree <= 1 algebraic flux, exact Dirichlet data, batched patch solver, no
-    concentrated multiplier (and ``opts.closed_form``)."""
+    disc fluxes, exact Dirichlet data, batched patch solver, no concentrated multiplier, an algebraic flux
+    (if given) in a broken RT space of degree <= 1 (and ``opts.closed_form``)."""
+    def broken(sigma):
+        flags = sigma.space.flags.ToDict()
+        return bool(flags.get("discontinuous")) and flags.get("RT") and flags.get("order", 99) <= 1
     return (opts.closed_form and dv.order == 1 and not dv.curved and dv.obstacle is None and opts.flux_degree(1) == 1
-            and opts.alg_flux_degree(1) <= 1 and exact_bc and opts.batched and not opts.concentrates(1))
+            and exact_bc and opts.batched and not opts.concentrates(1)
+            and (sigma_alg is None or all(broken(s) for s in sigma_alg)))
 
 
 def _mass(a, b, area):
