@@ -75,7 +75,8 @@ class P1Arrays:
         g0 = np.stack([e2[:, 1], -e2[:, 0]], axis=1) / det[:, None]
         g1 = np.stack([-e1[:, 1], e1[:, 0]], axis=1) / det[:, None]
         self.grad_lam = np.stack([g0, g1, -g0 - g1], axis=1)  # (ne, 3, 2)
-        self.q4 = QuadratureArrays(mesh, 4)  # exact for the squares of RT_1 fields
+        self._rules = {}
+        self.q4 = self.rule(4)  # exact for the squares of RT_1 fields
         self._rt = {}
         self._loads = {}
 
@@ -85,6 +86,12 @@ class P1Arrays:
         if key not in dv.cache:
             dv.cache[key] = cls(dv, area, bonus)
         return dv.cache[key]
+
+    def rule(self, order: int) -> QuadratureArrays:
+        """The points and weights of the triangle rule of ``order`` on every element (kept)."""
+        if order not in self._rules:
+            self._rules[order] = QuadratureArrays(self.mesh, order)
+        return self._rules[order]
 
     # ------------------------------------------------------------ fields at the vertices of every element
     def vertex_values(self, gf) -> np.ndarray:
@@ -130,12 +137,12 @@ class P1Arrays:
         if hit is not None and hit[0] is f:
             return hit[1]
         ne, area = self.mesh.ne, self.area
-        qL = QuadratureArrays(self.mesh, load_order)
+        qL = self.rule(load_order)
         b = np.einsum("kq,jq->kj", qL.W * qL.values(f), qL.bary)           # (f, lambda_j)_K, load rule
         pif = 12.0 / area[:, None] * (b - b.sum(axis=1, keepdims=True) / 4.0)  # the P1 mass matrix inverted
         out = {"pi": pif}
         for name, order in (("R1", 5 + self.bonus), ("R2", 13 + self.bonus)):
-            qa = QuadratureArrays(self.mesh, order)
+            qa = self.rule(order)
             fv = qa.values(f)
             o = fv - np.einsum("kj,jq->kq", pif, qa.bary)                   # o_f at the points
             if name == "R1":
