@@ -110,7 +110,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-from ngsolve import TRIG, CoefficientFunction, GridFunction, IfPos, TaskManager, dx, grad
+from ngsolve import H1, TRIG, CoefficientFunction, Discontinuous, GridFunction, IfPos, TaskManager, dx, grad
 
 from .affine_p1 import P1Arrays
 from .affine_p1 import applies as affine_p1_applies
@@ -268,13 +268,17 @@ def _disc_fluxes(sv: SolutionView, q: int, lam_p, lam_n, lam_hat, r_hat, use_p1:
     dv = sv.disc
     p = dv.order
     rules = data_rules(dv)
-    vertex_dx, mass_dx = dx(intrules={TRIG: vertex_rule()}), dx(intrules=rules["mass"])
+    vertex_dx = dx(intrules={TRIG: vertex_rule()})
     data, patch_data = [], []
     lam_v = None
+    lam_b = None
     if use_p1 and opts.batched:  # vertex values of lam^ (both fields), for the batched patch-constant sources
         lam_v = vertex_function_values(dv, lam_p)
         if lam_n is not None:
             lam_v = lam_v + vertex_function_values(dv, lam_n)
+    elif not use_p1:  # the elementwise-P1 fit lam^ (.multipliers.ContactMultiplier) as a broken-P1 GridFunction
+        lam_b = GridFunction(Discontinuous(H1(dv.mesh, order=1)), name="lam_hat")
+        lam_b.Set(lam_hat)  # exact: lam^ lies in the space
     for a, fd in enumerate(sv.fields):
         # m_alpha = s_alpha lam^ - r^_alpha; P1 functions by the patch-constant vertex device
         # (.moments), elementwise/dual ones exactly with the FE mass rule
@@ -283,29 +287,28 @@ def _disc_fluxes(sv: SolutionView, q: int, lam_p, lam_n, lam_hat, r_hat, use_p1:
             m = _gf_combination(lam_hat, float(fd.sign), r, -1.0, f"m_{fd.name}")
         else:
             m = fd.sign * lam_hat if r is None else fd.sign * lam_hat - r
-        vvals = None
+        vvals, mass = None, None
         if lam_v is not None:  # vertex functions: exact patch-constant sources of the batched solver
-            vterm, mterm = None, None
+            vterm = None
             vvals = fd.sign * lam_v
             if r is not None:
                 vvals = vvals - vertex_function_values(dv, r)
         elif use_p1:  # P1 / elementwise-P1 vertex functions: the patch-constant vertex device
-            vterm, mterm = vertex_moment_term(dv.mesh, m, q), None
-        else:  # q >= 3: exact products with the FE mass rule
-            vterm, mterm = None, m
+            vterm = vertex_moment_term(dv.mesh, m, q)
+        else:  # q >= 3 / curved: exact products with the FE mass rule, by operators assembled once (.flux)
+            vterm = None
+            mass = [(lam_b, float(fd.sign), 2 * p)] + ([(r, -1.0, 2 * p)] if r is not None else [])
         data.append(m)
 
-        def source(w, vterm=vterm, mterm=mterm):
-            out = None if vterm is None else -vterm(w) * vertex_dx
-            if mterm is not None:
-                out = -mterm * w * mass_dx if out is None else out - mterm * w * mass_dx
-            return out
+        def source(w, vterm=vterm):
+            return -vterm(w) * vertex_dx
 
         def load(w, f=fd.f):  # the iterate-independent part: assembled once per load (.patches)
             return -f * w * dx(intrules=rules["load"])
-        patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source if vterm is not None or mterm is not None else None,
+        patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source if vterm is not None else None,
                                     hessian=p > 1, bonus_intorder=flux_bonus(dv), name=f"sigma_disc_{fd.name}",
-                                    vertex_values=None if vvals is None else [(vvals, None)], load=(fd.f, load)))
+                                    vertex_values=None if vvals is None else [(vvals, None)], load=(fd.f, load),
+                                    mass=mass))
     sig_d = equilibrate_all(dv.mesh, q, patch_data, regularization=patch_regularization(dv, opts.regularization),
                             solver=patch_solver(dv, q) if opts.batched else None)
     return sig_d, data

@@ -52,8 +52,8 @@ import time
 from dataclasses import dataclass, field
 from typing import List, Optional
 
-from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv, L2, TaskManager, Trace, div,
-                     dx, grad, specialcf)
+from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv, IntegrationRule, L2, TaskManager,
+                     Trace, div, dx, grad, specialcf)
 from ngsolve.comp import PatchwiseSolve
 
 from ..domains import DIRICHLET
@@ -190,7 +190,9 @@ class PatchData:
     (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`.multipliers.ShapedContactMultiplier`);
     ``load``: a further source part ``(owner, w -> SumOfIntegrals)`` that depends only on ``owner`` (a load
     CoefficientFunction whose values do not change while it is the same object), assembled once per owner
-    by the batched solver."""
+    by the batched solver; ``mass``: further sources -(psi_a s g, w) given as (GridFunction g, s, order), integrated
+    with the triangle rule of that order (batched: by operators on the space of g assembled once,
+    :meth:`.patches.PatchSolver.operators`)."""
 
     u: object
     mu: float
@@ -200,6 +202,7 @@ class PatchData:
     name: str = "sigma"
     vertex_values: Optional[object] = None
     load: Optional[tuple] = None
+    mass: Optional[list] = None
 
 
 def _flux_terms(u, tau, w, mu, hessian: bool, bonus: int):
@@ -224,7 +227,24 @@ def _patch_rhs(X, d: PatchData, flux_part: bool = True, with_load: bool = True):
     for src in (d.source, d.load[1] if d.load is not None and with_load else None):
         if src is not None:
             lf = src(w) if lf is None else lf + src(w)
+    for g, scale, order in (d.mass or []) if with_load else []:
+        term = -scale * g * w * dx(intrules={TRIG: IntegrationRule(TRIG, order)})
+        lf = term if lf is None else lf + term
     return lf
+
+
+def _mass_operators(solver: PatchSolver, d: PatchData) -> list:
+    """The ``linear`` entries of :meth:`.patches.PatchSolver.solve` for ``d.mass`` (one operator per space and rule)."""
+    w = solver.Y.TestFunction()[1]
+    out = []
+    for g, scale, order in d.mass or []:
+        trial = g.space.TrialFunction()
+
+        def form_of_hat(hat, trial=trial, order=order):
+            return hat * trial * w * dx(intrules={TRIG: IntegrationRule(TRIG, order)})
+        key = ("mass", id(g.space), g.space.ndof, int(order))
+        out.append((key, g.space, form_of_hat, g.vec.FV().NumPy(), -float(scale)))
+    return out
 
 
 def _vertex_terms(d: PatchData):
@@ -269,6 +289,7 @@ def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver
     if solver is not None:
         linear = [_flux_operator(solver, d) for d in data]
         lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None, with_load=False) for d, lin in zip(data, linear)]
+        linear = [([] if lin is None else [lin]) + _mass_operators(solver, d) for d, lin in zip(data, linear)]
         vertex = [_vertex_terms(d) for d in data]
         fixed = [None if d.load is None else (d.load[0], lambda hat, src=d.load[1]: _times(hat, src(solver.Y.TestFunction()[1])))
                  for d in data]

@@ -292,8 +292,8 @@ class PatchSolver:
         lfs : list of (callable or None)
             per field: hat (CoefficientFunction) -> SumOfIntegrals of the right-hand side on
             ``self.Y`` = V x Q (test functions of Y) with every integrand multiplied by hat.
-        linear : list of (tuple or None), optional
-            per field, a further right-hand side part ``(key, space, form_of_hat, coefficients,
+        linear : list of (tuple, list of tuples or None), optional
+            per field, further right-hand side parts ``(key, space, form_of_hat, coefficients,
             scale)``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
             form_of_hat)[i].
         vertex : list of (list or None), optional
@@ -319,7 +319,8 @@ class PatchSolver:
         fixed = [None] * nf if fixed is None else fixed
         with TaskManager():
             for f, (lf_of_hat, lin, fix) in enumerate(zip(lfs, linear, fixed)):
-                mats = self.operators(*lin[:3]) if lin is not None else None
+                lins = [] if lin is None else (lin if isinstance(lin, list) else [lin])
+                mats = [self.operators(*part[:3]) for part in lins]
                 kept = self.fixed_vectors(*fix) if fix is not None else None
                 for i, hat in enumerate(self.hats):
                     vec = np.zeros(self.Y.ndof) if kept is None else kept[i].copy()
@@ -327,8 +328,8 @@ class PatchSolver:
                         form = LinearForm(self.Y)
                         form += lf_of_hat(hat)
                         vec += form.Assemble().vec.FV().NumPy()
-                    if mats is not None:
-                        vec += lin[4] * (mats[i] @ lin[3])
+                    for part, ops in zip(lins, mats):
+                        vec += part[4] * (ops[i] @ part[3])
                     b[f, i, :, :nV] = vec[:self.offQ].reshape(ne, nV)
                     b[f, i, :, nV:] = vec[self.offQ:self.offF].reshape(ne, self.nQ)
         for f, terms in enumerate(vertex or []):
