@@ -120,18 +120,15 @@ def algebraic_flux(disc, dx_alg: np.ndarray, options: Optional[EstimatorOptions]
         else:  # (g, psi_a) = mu (grad d, grad psi_a), exact
             mom = mu * (S @ d.vec.FV().NumPy())
         gv = np.where(free, mom / vol, 0.0)
-        source, vvals = None, None
+        vvals, lin = None, None
         if vertex:
             vvals = [(gv[dv.element_vertices()], None)]
-        else:
+        else:  # -(psi_a g, w) by the vertex device and rule of the flux module, an operator on g (.flux)
             g = GridFunction(V1, name="g_alg")
             g.vec.FV().NumPy()[:] = gv
-            term = vertex_moment_term(mesh, g, q)
-
-            def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
-                return -term(w) * dx(intrules=rule)
-        data.append(PatchData(u=d, mu=mu, source=source, hessian=p > 1, bonus_intorder=flux_bonus(dv),
-                              name=f"sigma_alg_{name}", vertex_values=vvals))
+            lin = [(g, 1.0, ("vertex device", q), lambda v, w: vertex_moment_term(mesh, v, q)(w) * dx(intrules=rule))]
+        data.append(PatchData(u=d, mu=mu, hessian=p > 1, bonus_intorder=flux_bonus(dv), name=f"sigma_alg_{name}",
+                              vertex_values=vvals, mass=lin))
     return equilibrate_all(mesh, q, data, regularization=patch_regularization(dv, opts.regularization),
                            solver=patch_solver(dv, q) if opts.batched else None)
 

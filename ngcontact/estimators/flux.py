@@ -190,8 +190,9 @@ class PatchData:
     (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`.multipliers.ShapedContactMultiplier`);
     ``load``: a further source part ``(owner, w -> SumOfIntegrals)`` that depends only on ``owner`` (a load
     CoefficientFunction whose values do not change while it is the same object), assembled once per owner
-    by the batched solver; ``mass``: further sources -(psi_a s g, w) given as (GridFunction g, s, order), integrated
-    with the triangle rule of that order (batched: by operators on the space of g assembled once,
+    by the batched solver; ``mass``: further sources -(psi_a s g, w) linear in a GridFunction g, given as (g, s,
+    order) -- integrated with the triangle rule of that order -- or (g, s, key, form) with form(v, w) the integral
+    of v times the test function w (batched: by operators on the space of g assembled once per key,
     :meth:`.patches.PatchSolver.operators`)."""
 
     u: object
@@ -227,22 +228,30 @@ def _patch_rhs(X, d: PatchData, flux_part: bool = True, with_load: bool = True):
     for src in (d.source, d.load[1] if d.load is not None and with_load else None):
         if src is not None:
             lf = src(w) if lf is None else lf + src(w)
-    for g, scale, order in (d.mass or []) if with_load else []:
-        term = -scale * g * w * dx(intrules={TRIG: IntegrationRule(TRIG, order)})
+    for g, scale, _, form in (_linear_source(e) for e in (d.mass or []) if with_load):
+        term = -scale * form(g, w)
         lf = term if lf is None else lf + term
     return lf
+
+
+def _linear_source(entry):
+    """(g, scale, key, form) of a ``PatchData.mass`` entry (the FE mass rule of the given order for (g, s, order))."""
+    if len(entry) == 4:
+        return entry
+    g, scale, order = entry
+    return g, scale, ("mass", int(order)), lambda v, w: v * w * dx(intrules={TRIG: IntegrationRule(TRIG, order)})
 
 
 def _mass_operators(solver: PatchSolver, d: PatchData) -> list:
     """The ``linear`` entries of :meth:`.patches.PatchSolver.solve` for ``d.mass`` (one operator per space and rule)."""
     w = solver.Y.TestFunction()[1]
     out = []
-    for g, scale, order in d.mass or []:
+    for g, scale, key, form in (_linear_source(e) for e in d.mass or []):
         trial = g.space.TrialFunction()
 
-        def form_of_hat(hat, trial=trial, order=order):
-            return hat * trial * w * dx(intrules={TRIG: IntegrationRule(TRIG, order)})
-        key = ("mass", id(g.space), g.space.ndof, int(order))
+        def form_of_hat(hat, trial=trial, form=form):
+            return _times(hat, form(trial, w))
+        key = (key, id(g.space), g.space.ndof)
         out.append((key, g.space, form_of_hat, g.vec.FV().NumPy(), -float(scale)))
     return out
 
