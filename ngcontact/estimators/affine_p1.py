@@ -129,12 +129,23 @@ class P1Arrays:
                 np.matmul(D, c[:, :, None])[:, :, 0])
 
     # ------------------------------------------------------------ the load
+    def seen(self, loads) -> bool:
+        """Whether every load object was met before (registering the new ones): a load that changes with every
+        evaluation (the time-step loads f - tau of :mod:`ngcontact.timestepping.estimate`) is cheaper by
+        quadrature than by building its arrays, so the closed form starts with the second evaluation of a load."""
+        new = [f for f in loads if not (id(f) in self._loads and self._loads[id(f)][0] is f)]
+        for f in new:
+            if len(self._loads) >= 4:
+                self._loads.pop(next(iter(self._loads)))
+            self._loads[id(f)] = (f, None)  # the load is referenced: its id stays unique
+        return not new
+
     def load(self, f, load_order: int) -> dict:
         """Per-load arrays (kept while ``f`` is the same object; the last four loads): Pi f at the vertices,
         ||o_f||_K^2, (o_f, lambda_j)_K and (f, lambda_j)_K in the rule of order 5 + bonus, (o_f, 1)_K in the
         rule of order 13 + bonus."""
         hit = self._loads.get(id(f))
-        if hit is not None and hit[0] is f:
+        if hit is not None and hit[0] is f and hit[1] is not None:
             return hit[1]
         ne, area = self.mesh.ne, self.area
         qL = self.rule(load_order)
@@ -151,7 +162,7 @@ class P1Arrays:
                 out["fl"] = np.einsum("kq,jq->kj", qa.W * fv, qa.bary)
             else:
                 out["o1"] = qa.integrate(o)
-        if len(self._loads) >= 4:
+        if id(f) not in self._loads and len(self._loads) >= 4:
             self._loads.pop(next(iter(self._loads)))
         self._loads[id(f)] = (f, out)
         assert out["pi"].shape == (ne, 3)

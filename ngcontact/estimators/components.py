@@ -386,6 +386,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
         vals, grads, gap, ggap = corrected_fields(dv, fields, ws)
         # P1 on affine elements: the same integrals in closed form from per-mesh arrays (.affine_p1)
         ar = P1Arrays.of(dv, ig.area, ig.bonus) if affine_p1_applies(dv, opts, exact_bc, sigma_alg) else None
+        ar = ar if ar is not None and ar.seen([fd.f for fd in fields]) else None
         load_order = 2 * p + dv.quad_bonus  # the load rule of the FE system (.moments.data_rules)
         eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, sig_d, grads, data,
                                                        ar and ar.flux_parts(fields, sig_d, data, load_order))  # disc

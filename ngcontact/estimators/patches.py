@@ -24,7 +24,9 @@ of the patch matrices (formed from the third call on, kept while they fit in
 of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
 :mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
 (:meth:`PatchSolver.operators`), so a new u_h costs three sparse products instead of three
-assemblies with the Hessian and element-boundary terms.
+assemblies with the Hessian and element-boundary terms; likewise the FE-mass-rule sources linear in a
+GridFunction (``PatchData.mass`` of :mod:`.flux`), and the load part of the sources is assembled once
+per load object (:meth:`PatchSolver.fixed_vectors`).
 
 Cost: ``PatchwiseSolve`` (NGSolve 6.2) loops over the vertices on one thread, recomputes the
 element matrices of every patch (three times per element) and inverts the full patch matrix
