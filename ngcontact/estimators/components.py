@@ -277,7 +277,9 @@ def _disc_fluxes(sv: SolutionView, q: int, lam_p, lam_n, lam_hat, r_hat, use_p1:
         if lam_n is not None:
             lam_v = lam_v + vertex_function_values(dv, lam_n)
     elif not use_p1:  # the elementwise-P1 fit lam^ (.multipliers.ContactMultiplier) as a broken-P1 GridFunction
-        lam_b = GridFunction(Discontinuous(H1(dv.mesh, order=1)), name="lam_hat")
+        if "broken_p1" not in dv.cache:  # one space per mesh: the patch operators on it are kept (.flux)
+            dv.cache["broken_p1"] = Discontinuous(H1(dv.mesh, order=1))
+        lam_b = GridFunction(dv.cache["broken_p1"], name="lam_hat")
         lam_b.Set(lam_hat)  # exact: lam^ lies in the space
     for a, fd in enumerate(sv.fields):
         # m_alpha = s_alpha lam^ - r^_alpha; P1 functions by the patch-constant vertex device
