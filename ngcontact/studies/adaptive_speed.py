@@ -46,9 +46,9 @@ def measure(order: int, mode: str, say=print) -> dict:
            "time_solve_s": float(r["time_solve_s"]), "time_estimate_s": float(r.get("time_estimate_newton_s", 0.0)),
            "n_estimates": int(r.get("n_estimates", 0) or 0), "wall_s": wall, "cpu_s": cpu,
            "converged": bool(res.converged)}
-    say(f"P{order} {mode:9s} nelem {out['nelem']} Newton {out['newton']} GMRES {out['gmres']} err {out['err_energy']:.6e} "
-        f"solve {out['time_solve_s']:.1f} s (estimators {out['time_estimate_s']:.1f} s) wall {wall:.1f} s cpu {cpu:.1f} s",
-        flush=True)
+    say(f"P{order} {mode:9s} nelem {out['nelem']} Newton {out['newton']} GMRES {out['gmres']} "
+        f"err {out['err_energy']:.6e} solve {out['time_solve_s']:.1f} s (estimators {out['time_estimate_s']:.1f} s) "
+        f"wall {wall:.1f} s cpu {cpu:.1f} s", flush=True)
     return out
 
 
@@ -66,7 +66,8 @@ def write_table(rows: list, path: Path, command: str) -> None:
         ref = next((d for d in rows if d["tag"] == r["tag"] and d["order"] == r["order"] and d["mode"] == "direct"),
                    None)
         ratio = f"{r['err_energy'] / ref['err_energy']:.4f}" if ref else "-"
-        lines.append(f"| {r['tag']} | {r['order']} | {r['nelem']} | {r['mode']} | {r['newton']} | {r['gmres'] or '-'} | "
+        lines.append(f"| {r['tag']} | {r['order']} | {r['nelem']} | {r['mode']} | {r['newton']} | "
+                     f"{r['gmres'] or '-'} | "
                      f"{r['err_energy']:.6e} | {ratio} | {r['n_estimates'] or '-'} | {r['time_estimate_s']:.1f} | "
                      f"{r['time_solve_s']:.1f} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} |")
     path.write_text("\n".join(lines) + "\n")
