@@ -111,6 +111,12 @@ results/compare/runs/%: $(STAMP)
 inexact-study: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.inexact results/inexact
 
+## adaptive-speed: wall / CPU time of adaptive vs inexact vs direct on the finest [JSC20] disk meshes (P1 35k,
+## P2 27k), one process -> results/inexact/ADAPTIVE_SPEED.md (issue 24, item 4)
+.PHONY: adaptive-speed
+adaptive-speed: $(STAMP)
+	NGCONTACT_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.adaptive_speed results/inexact
+
 ## sweep: uniform vs adaptive (Doerfler 0.5, bisection, warm start) FEM P1..P3 on lshape, test1,
 ## disk, disk_fitted, point_load; one independent target per run (`make -j2 sweep`; each run uses one NGSolve
 ## thread, so parallel runs do not distort each other's times); entries: ngcontact/studies/sweep.py SWEEP.

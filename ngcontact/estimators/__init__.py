@@ -13,6 +13,7 @@
 * :mod:`.terms` -- the individual terms eta_F, eta_R, eta_quad, eta_nonc,1..2, Theta and constants;
 * :mod:`.bound` -- the guaranteed total eta (:func:`estimate`);
 * :mod:`.components` -- eta_disc, eta_lin, eta_alg of any iterate (seed Corollary);
+* :mod:`.affine_p1` -- the same element terms in closed form for P1 on affine elements (per-mesh arrays);
 * :mod:`.algebraic` -- the algebraic flux sigma_alg of an inexact Newton step;
 * :mod:`.history` -- components along Newton iterations;
 * :mod:`.checks` -- equilibration, normal continuity, complementarity diagnostics.

@@ -50,10 +50,10 @@ import math
 from typing import List, Optional
 
 import numpy as np
-from ngsolve import H1, L2, TRIG, GridFunction, Integrate, LinearForm, div, dx, grad
+from ngsolve import H1, L2, TRIG, BilinearForm, GridFunction, Integrate, LinearForm, div, dx, grad
 
 from ..domains import DIRICHLET
-from .flux import PatchData, equilibrate_all, flux_bonus, patch_regularization, patch_solver
+from .flux import PatchData, equilibrate_all, flux_bonus, patch_regularization, patch_solver, vertex_device_exact
 from .moments import vertex_moment_term, vertex_rule
 from .options import EstimatorOptions
 from .terms import Integrals
@@ -63,15 +63,24 @@ __all__ = ["algebraic_flux", "algebraic_correction_norm", "algebraic_terms", "et
 
 
 def _p1_data(dv: DiscretizationView):
-    """(V1, test function, interior-vertex mask, (psi_a, 1) by the vertex rule, vertex rule), cached per disc."""
+    """(V1, test function, interior-vertex mask, (psi_a, 1) by the vertex rule, vertex rule, S) with
+    S[a, j] = (grad phi_j, grad psi_a) (phi_j: the basis of ``dv.fes``; None on curved elements), cached per disc."""
     c = dv.cache
     if "p1" not in c:
+        from scipy.sparse import csr_matrix
+
         V1 = H1(dv.mesh, order=1, dirichlet=DIRICHLET)
         v = V1.TestFunction()
         free = np.array(list(V1.FreeDofs()), dtype=bool)
         rule = {TRIG: vertex_rule()}
         vol = LinearForm(v * dx(intrules=rule)).Assemble().vec.FV().NumPy().copy()
-        c["p1"] = (V1, v, free, vol, rule)
+        S = None
+        if not dv.curved:
+            form = BilinearForm(trialspace=dv.fes, testspace=V1)
+            form += grad(dv.fes.TrialFunction()) * grad(v) * dx
+            form.Assemble()
+            S = csr_matrix(tuple(np.array(a) for a in form.mat.CSR()), shape=(V1.ndof, dv.fes.ndof))
+        c["p1"] = (V1, v, free, vol, rule, S)
     return c["p1"]
 
 
@@ -101,19 +110,25 @@ def algebraic_flux(disc, dx_alg: np.ndarray, options: Optional[EstimatorOptions]
     mesh = dv.mesh
     ni = dv.n_interior
     dx_alg = np.asarray(dx_alg, dtype=float)
-    V1, v, free, vol, rule = _p1_data(dv)
+    V1, v, free, vol, rule, S = _p1_data(dv)
+    vertex = opts.batched and vertex_device_exact(dv, q)  # exact patch-constant sources, no assembly
     data = []
     for a, (name, mu) in enumerate(zip(dv.names, dv.mus)):
         d = dv.interior_function(dx_alg[a * ni:(a + 1) * ni], f"d_alg_{a + 1}")  # d_alpha,h, zero Dirichlet
-        mom = LinearForm(mu * grad(d) * grad(v) * dx).Assemble().vec.FV().NumPy()  # small: no TaskManager
-        g = GridFunction(V1, name="g_alg")
-        g.vec.FV().NumPy()[:] = np.where(free, mom / vol, 0.0)  # (g, psi_a) = mu (grad d, grad psi_a)
-        term = vertex_moment_term(mesh, g, q)
-
-        def source(w, term=term):  # -(psi_a g, w), vertex rule as in the flux module
-            return -term(w) * dx(intrules=rule)
-        data.append(PatchData(u=d, mu=mu, source=source, hessian=p > 1, bonus_intorder=flux_bonus(dv),
-                              name=f"sigma_alg_{name}"))
+        if dv.curved:  # the quadrature of the linear form (not polynomial on curved elements)
+            mom = LinearForm(mu * grad(d) * grad(v) * dx).Assemble().vec.FV().NumPy()  # small: no TaskManager
+        else:  # (g, psi_a) = mu (grad d, grad psi_a), exact
+            mom = mu * (S @ d.vec.FV().NumPy())
+        gv = np.where(free, mom / vol, 0.0)
+        vvals, lin = None, None
+        if vertex:
+            vvals = [(gv[dv.element_vertices()], None)]
+        else:  # -(psi_a g, w) by the vertex device and rule of the flux module, an operator on g (.flux)
+            g = GridFunction(V1, name="g_alg")
+            g.vec.FV().NumPy()[:] = gv
+            lin = [(g, 1.0, ("vertex device", q), lambda v, w: vertex_moment_term(mesh, v, q)(w) * dx(intrules=rule))]
+        data.append(PatchData(u=d, mu=mu, hessian=p > 1, bonus_intorder=flux_bonus(dv), name=f"sigma_alg_{name}",
+                              vertex_values=vvals, mass=lin))
     return equilibrate_all(mesh, q, data, regularization=patch_regularization(dv, opts.regularization),
                            solver=patch_solver(dv, q) if opts.batched else None)
 
@@ -140,26 +155,33 @@ def _p0(mesh, values: np.ndarray) -> GridFunction:
     return gf
 
 
-def algebraic_terms(ig: Integrals, fields, r_hat, sigma_alg=None):
+def algebraic_terms(ig: Integrals, fields, r_hat, sigma_alg=None, parts=None):
     """(flux, mean-free, mean) parts of eta_alg of :mod:`.components` for the representations r^_alpha of
     the algebraic residual: ||mu^{-1/2} sigma_alg||, the Poincare bound of the mean-free part of
     r^ - div sigma_alg and the RT_0 bound of its element means.  ``sigma_alg`` None: the RT_0 mixed
-    solution of div sigma_alg = Pi_0 r^ (one global Crouzeix-Raviart solve)."""
+    solution of div sigma_alg = Pi_0 r^ (one global Crouzeix-Raviart solve).  ``parts``: a -> (||sigma_alg||^2
+    or None for the global solve, element means of r^ (sigma_alg None) or of rem = r^ - div sigma_alg,
+    ||rem - mean_K rem||_K^2) computed elsewhere (:mod:`.affine_p1`)."""
     mesh, h, area = ig.mesh, ig.h, ig.area
     fl2, loc2, mean2 = 0.0, 0.0, 0.0
     for a, (fd, r) in enumerate(zip(fields, r_hat)):
         mu = fd.mu
-        rb = ig.ew(r, dx) / area
-        if sigma_alg is None:  # RT_0 mixed solution of div sigma = Pi_0 r^ (global CR solve)
-            fl2 += ig.dual.norm(rb) ** 2 / mu
-            rem = r - _p0(mesh, rb)
-            loc2 += float(((h / math.pi) ** 2 * np.maximum(ig.ew(rem * rem), 0.0)).sum()) / mu
+        if parts is not None:
+            sa2, mb, free2 = parts(a)
+        elif sigma_alg is None:
+            mb = ig.ew(r, dx) / area
+            rem = r - _p0(mesh, mb)
+            sa2, free2 = None, ig.ew(rem * rem)
         else:
             sa = sigma_alg[a]
-            fl2 += max(Integrate(sa * sa * ig.dxq, mesh), 0.0) / mu
+            sa2 = Integrate(sa * sa * ig.dxq, mesh)
             rem = r - div(sa)
             mb = ig.ew(rem, dx(bonus_intorder=ig.bonus + 8)) / area
-            loc2 += float(((h / math.pi) ** 2 * np.maximum(ig.ew(rem * rem) - mb ** 2 * area, 0.0)).sum()) / mu
+            free2 = ig.ew(rem * rem) - mb ** 2 * area
+        # sa2 None: the RT_0 mixed solution of div sigma = Pi_0 r^ (global CR solve); r^ - Pi_0 r^ is mean-free
+        fl2 += (ig.dual.norm(mb) ** 2 if sa2 is None else max(sa2, 0.0)) / mu
+        loc2 += float(((h / math.pi) ** 2 * np.maximum(free2, 0.0)).sum()) / mu
+        if sa2 is not None:
             mn = ig.C_F * math.sqrt(float((mb ** 2 * area).sum()))
             if mn > 0.0:
                 mn = min(mn, ig.dual.norm(mb))

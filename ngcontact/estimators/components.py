@@ -110,8 +110,10 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-from ngsolve import TRIG, CoefficientFunction, GridFunction, IfPos, TaskManager, dx, grad
+from ngsolve import H1, TRIG, CoefficientFunction, Discontinuous, GridFunction, IfPos, TaskManager, dx, grad
 
+from .affine_p1 import P1Arrays
+from .affine_p1 import applies as affine_p1_applies
 from .algebraic import algebraic_terms
 from .boundary import boundary_nodal_values, boundary_vertex_values
 from .dirichlet import dirichlet_lifting
@@ -266,13 +268,19 @@ def _disc_fluxes(sv: SolutionView, q: int, lam_p, lam_n, lam_hat, r_hat, use_p1:
     dv = sv.disc
     p = dv.order
     rules = data_rules(dv)
-    vertex_dx, mass_dx = dx(intrules={TRIG: vertex_rule()}), dx(intrules=rules["mass"])
+    vertex_dx = dx(intrules={TRIG: vertex_rule()})
     data, patch_data = [], []
     lam_v = None
+    lam_b = None
     if use_p1 and opts.batched:  # vertex values of lam^ (both fields), for the batched patch-constant sources
         lam_v = vertex_function_values(dv, lam_p)
         if lam_n is not None:
             lam_v = lam_v + vertex_function_values(dv, lam_n)
+    elif not use_p1:  # the elementwise-P1 fit lam^ (.multipliers.ContactMultiplier) as a broken-P1 GridFunction
+        if "broken_p1" not in dv.cache:  # one space per mesh: the patch operators on it are kept (.flux)
+            dv.cache["broken_p1"] = Discontinuous(H1(dv.mesh, order=1))
+        lam_b = GridFunction(dv.cache["broken_p1"], name="lam_hat")
+        lam_b.Set(lam_hat)  # exact: lam^ lies in the space
     for a, fd in enumerate(sv.fields):
         # m_alpha = s_alpha lam^ - r^_alpha; P1 functions by the patch-constant vertex device
         # (.moments), elementwise/dual ones exactly with the FE mass rule
@@ -281,31 +289,51 @@ def _disc_fluxes(sv: SolutionView, q: int, lam_p, lam_n, lam_hat, r_hat, use_p1:
             m = _gf_combination(lam_hat, float(fd.sign), r, -1.0, f"m_{fd.name}")
         else:
             m = fd.sign * lam_hat if r is None else fd.sign * lam_hat - r
-        vvals = None
+        vvals, mass = None, None
         if lam_v is not None:  # vertex functions: exact patch-constant sources of the batched solver
-            vterm, mterm = None, None
+            vterm = None
             vvals = fd.sign * lam_v
             if r is not None:
                 vvals = vvals - vertex_function_values(dv, r)
         elif use_p1:  # P1 / elementwise-P1 vertex functions: the patch-constant vertex device
-            vterm, mterm = vertex_moment_term(dv.mesh, m, q), None
-        else:  # q >= 3: exact products with the FE mass rule
-            vterm, mterm = None, m
+            vterm = vertex_moment_term(dv.mesh, m, q)
+        else:  # q >= 3 / curved: exact products with the FE mass rule, by operators assembled once (.flux)
+            vterm = None
+            mass = [(lam_b, float(fd.sign), 2 * p)] + ([(r, -1.0, 2 * p)] if r is not None else [])
         data.append(m)
 
-        def source(w, fd=fd, vterm=vterm, mterm=mterm):
-            out = -fd.f * w * dx(intrules=rules["load"])
-            if vterm is not None:
-                out += -vterm(w) * vertex_dx
-            if mterm is not None:
-                out += -mterm * w * mass_dx
-            return out
-        patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=flux_bonus(dv),
-                                    name=f"sigma_disc_{fd.name}",
-                                    vertex_values=None if vvals is None else [(vvals, None)]))
+        def source(w, vterm=vterm):
+            return -vterm(w) * vertex_dx
+
+        def load(w, f=fd.f):  # the iterate-independent part: assembled once per load (.patches)
+            return -f * w * dx(intrules=rules["load"])
+        patch_data.append(PatchData(u=fd.u, mu=fd.mu, source=source if vterm is not None else None,
+                                    hessian=p > 1, bonus_intorder=flux_bonus(dv), name=f"sigma_disc_{fd.name}",
+                                    vertex_values=None if vvals is None else [(vvals, None)], load=(fd.f, load),
+                                    mass=mass))
     sig_d = equilibrate_all(dv.mesh, q, patch_data, regularization=patch_regularization(dv, opts.regularization),
                             solver=patch_solver(dv, q) if opts.batched else None)
     return sig_d, data
+
+
+def _contact_terms(ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, corr_d, c, ref: float, nonc2_d: float):
+    """(eta_C,K, nonc2_disc, nonc3_disc, nonc3_lin, Theta_disc, Theta_lin) by quadrature (module doc): lam~ moved
+    towards the small gaps in every element, as in :func:`.bound.estimate` (the mean-free defect goes to
+    eta_nonc2,disc); Theta of the direct bound split like the corrections: s~ - s_h - w_h (disc), s_h - u_h
+    (lin)."""
+    qa = QuadratureArrays(ig.mesh, 2 * p + 6)
+    lam_v, gap_v = qa.values(lam_t), qa.values(gap)
+    cd_v, cl_v = qa.values(corr_d), qa.values(c)
+    if opts.concentrates(p):
+        lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + cd_v + cl_v, ig.h, ig.C_mu, ref)
+        nonc2_d += ig.C_mu * math.sqrt(float(loc2.sum()))
+    eta_C = 2.0 * qa.integrate(lam_v * gap_v)          # eta_C,K = 2 (lam~, g_h)_K
+    nonc3_d = 2.0 * float(qa.integrate(lam_v * cd_v).sum())
+    nonc3_l = 2.0 * float(qa.integrate(lam_v * cl_v).sum())
+    zero2 = CoefficientFunction((0.0, 0.0))
+    theta_d = contact_work(ig, fields, grads, corr_d, IfPos(-gap_s, -ggap_s, zero2)) if corr_d is not None else 0.0
+    theta_l = contact_work(ig, fields, grads, c, grad(c)) if c is not None else 0.0
+    return eta_C, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l
 
 
 def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Optional[EstimatorOptions] = None,
@@ -358,8 +386,14 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
         ws, eta_bc, eps_w, _ = dirichlet_lifting(dv, fields, opts.dirichlet_correction)
         exact_bc = all(w is None for w in ws)
         vals, grads, gap, ggap = corrected_fields(dv, fields, ws)
-        eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, sig_d, grads, data)             # disc
-        alg_flux, alg_loc, alg_mean = algebraic_terms(ig, fields, r_hat, sigma_alg) if r_hat else (0.0, 0.0, 0.0)
+        # P1 on affine elements: the same integrals in closed form from per-mesh arrays (.affine_p1)
+        ar = P1Arrays.of(dv, ig.area, ig.bonus) if affine_p1_applies(dv, opts, exact_bc, sigma_alg) else None
+        ar = ar if ar is not None and ar.seen([fd.f for fd in fields]) else None
+        load_order = 2 * p + dv.quad_bonus  # the load rule of the FE system (.moments.data_rules)
+        eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, sig_d, grads, data,
+                                                       ar and ar.flux_parts(fields, sig_d, data, load_order))  # disc
+        alg_flux, alg_loc, alg_mean = algebraic_terms(ig, fields, r_hat, sigma_alg, ar and ar.alg_parts(
+            r_hat, sigma_alg)) if r_hat else (0.0, 0.0, 0.0)
         eta_alg = alg_flux + alg_loc + alg_mean
 
         # ------------------------------------------------------------ multiplier defects (eta_nonc,2)
@@ -367,7 +401,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
             lam_t, nonc2_d = lam_p, 0.0  # >= 0 (nonnegative vertex coefficients)
         else:
             lam_t, nonc2_d, _ = nonnegative_part(ig, lam_p, 1, eta_FR)
-        nonc2_l = defect_norm(ig, lam_n, eta_FR)[0] if lam_n is not None else 0.0
+        nonc2_l = defect_norm(ig, lam_n, eta_FR, ar and ar.defect_parts(lam_n))[0] if lam_n is not None else 0.0
 
         # ------------------------------------------------------------ s_h (nodal averaging), s~_h
         _, weight = split(mus)
@@ -375,7 +409,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
         neg = np.maximum(-g_nodal, 0.0)
         if neg.any():
             c = dv.interior_function(neg, "gap_neg_nodal")
-            loc_l = weight * np.maximum(ig.ew(grad(c) * grad(c), dx), 0.0)
+            loc_l = weight * np.maximum(ar.grad_sq(c) if ar else ig.ew(grad(c) * grad(c), dx), 0.0)
             d_l = math.sqrt(float(loc_l.sum()))
             gap_s, ggap_s = gap + c, ggap + grad(c)
         else:
@@ -386,22 +420,15 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
         # ------------------------------------------------------------ contact terms
         # lam~ moved towards the small gaps in every element, as in :func:`.bound.estimate`
         # (the mean-free defect goes to eta_nonc2,disc)
-        qa = QuadratureArrays(mesh, 2 * p + 6)
-        lam_v, gap_v = qa.values(lam_t), qa.values(gap)
-        cd_v, cl_v = qa.values(corr_d), qa.values(c)
-        if opts.concentrates(p):
-            lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + cd_v + cl_v, ig.h, ig.C_mu,
-                                                  eta_FR + eta_quad + nonc2_d + nonc2_l + 2.0 * (d_d + d_l))
-            nonc2_d += ig.C_mu * math.sqrt(float(loc2.sum()))
-        eta_C = 2.0 * qa.integrate(lam_v * gap_v)          # eta_C,K = 2 (lam~, g_h)_K
+        if ar is not None:  # no s~ - s_h correction (P1 gap, exact data), no concentration
+            eta_C, nonc3_l, theta_l = ar.contact(fields, lam_t, c, split(mus)[0], load_order)
+            nonc3_d, theta_d = 0.0, 0.0
+        else:
+            eta_C, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l = _contact_terms(
+                ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, corr_d, c,
+                eta_FR + eta_quad + nonc2_d + nonc2_l + 2.0 * (d_d + d_l), nonc2_d)
         sum_C = float(eta_C.sum())
         P_lin = 2.0 * float((dv.D * np.maximum(sv.y, 0.0) * g_nodal).sum())  # discrete complementarity product
-        nonc3_d = 2.0 * float(qa.integrate(lam_v * cd_v).sum())
-        nonc3_l = 2.0 * float(qa.integrate(lam_v * cl_v).sum())
-        # Theta of the direct bound, split like the corrections: s~ - s_h - w_h (disc), s_h - u_h (lin)
-        zero2 = CoefficientFunction((0.0, 0.0))
-        theta_d = contact_work(ig, fields, grads, corr_d, IfPos(-gap_s, -ggap_s, zero2)) if corr_d is not None else 0.0
-        theta_l = contact_work(ig, fields, grads, c, grad(c)) if c is not None else 0.0
     # 2P = sum_C + nonc3 = (sum_C - P_lin + nonc3_d) + (P_lin + nonc3_l) <= 2P_disc + 2P_lin
     twoP_d = max(sum_C - P_lin + nonc3_d, 0.0)
     twoP_l = max(P_lin + nonc3_l, 0.0)

@@ -52,8 +52,8 @@ import time
 from dataclasses import dataclass, field
 from typing import List, Optional
 
-from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv, L2, TaskManager, Trace, div,
-                     dx, grad, specialcf)
+from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv, IntegrationRule, L2, TaskManager,
+                     Trace, div, dx, grad, specialcf)
 from ngsolve.comp import PatchwiseSolve
 
 from ..domains import DIRICHLET
@@ -187,7 +187,13 @@ class PatchData:
     with g_a|_K = vertex_values[K, i] for the local vertex i of K that is a (exact for every RT
     degree and on curved elements; the vertex device :func:`.moments.vertex_moment_term` is the
     ``PatchwiseSolve`` counterpart, exact for q <= 2 on affine elements), given as a list of
-    (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`.multipliers.ShapedContactMultiplier`)."""
+    (values, shape) pairs: g_a|_K = values[K, i] shape (shape None: 1; :class:`.multipliers.ShapedContactMultiplier`);
+    ``load``: a further source part ``(owner, w -> SumOfIntegrals)`` that depends only on ``owner`` (a load
+    CoefficientFunction whose values do not change while it is the same object), assembled once per owner
+    by the batched solver; ``mass``: further sources -(psi_a s g, w) linear in a GridFunction g, given as (g, s,
+    order) -- integrated with the triangle rule of that order -- or (g, s, key, form) with form(v, w) the integral
+    of v times the test function w (batched: by operators on the space of g assembled once per key,
+    :meth:`.patches.PatchSolver.operators`)."""
 
     u: object
     mu: float
@@ -196,6 +202,8 @@ class PatchData:
     bonus_intorder: int = 0
     name: str = "sigma"
     vertex_values: Optional[object] = None
+    load: Optional[tuple] = None
+    mass: Optional[list] = None
 
 
 def _flux_terms(u, tau, w, mu, hessian: bool, bonus: int):
@@ -209,17 +217,43 @@ def _flux_terms(u, tau, w, mu, hessian: bool, bonus: int):
     return lf
 
 
-def _patch_rhs(X, d: PatchData, flux_part: bool = True):
+def _patch_rhs(X, d: PatchData, flux_part: bool = True, with_load: bool = True):
     """The right-hand side of the patch problems on X (every term is multiplied by psi_a):
     (s, tau) - (r, div tau) + <tau.n, m> = -(psi_a mu grad u, tau)   [mu constant]
     -(div s, w) - eps (r, w) = -(psi_a g, w) + (mu grad psi_a . grad u, w), with
     (grad psi_a . grad u, w)_K = -(psi_a, Lap u w + grad u . grad w)_K + <psi_a grad u . n, w>_dK.
-    ``flux_part=False``: only the source part (None if there is none)."""
+    ``flux_part=False``: only the source part (None if there is none); ``with_load=False``: without ``d.load``."""
     tau, w = X.TestFunction()[:2]  # X = V x Q x F (PatchwiseSolve) or V x Q (batched: no facet rows)
     lf = _flux_terms(d.u, tau, w, d.mu, d.hessian, d.bonus_intorder) if flux_part else None
-    if d.source is not None:
-        lf = d.source(w) if lf is None else lf + d.source(w)
+    for src in (d.source, d.load[1] if d.load is not None and with_load else None):
+        if src is not None:
+            lf = src(w) if lf is None else lf + src(w)
+    for g, scale, _, form in (_linear_source(e) for e in (d.mass or []) if with_load):
+        term = -scale * form(g, w)
+        lf = term if lf is None else lf + term
     return lf
+
+
+def _linear_source(entry):
+    """(g, scale, key, form) of a ``PatchData.mass`` entry (the FE mass rule of the given order for (g, s, order))."""
+    if len(entry) == 4:
+        return entry
+    g, scale, order = entry
+    return g, scale, ("mass", int(order)), lambda v, w: v * w * dx(intrules={TRIG: IntegrationRule(TRIG, order)})
+
+
+def _mass_operators(solver: PatchSolver, d: PatchData) -> list:
+    """The ``linear`` entries of :meth:`.patches.PatchSolver.solve` for ``d.mass`` (one operator per space and rule)."""
+    w = solver.Y.TestFunction()[1]
+    out = []
+    for g, scale, key, form in (_linear_source(e) for e in d.mass or []):
+        trial = g.space.TrialFunction()
+
+        def form_of_hat(hat, trial=trial, form=form):
+            return _times(hat, form(trial, w))
+        key = (key, id(g.space), g.space.ndof)
+        out.append((key, g.space, form_of_hat, g.vec.FV().NumPy(), -float(scale)))
+    return out
 
 
 def _vertex_terms(d: PatchData):
@@ -263,10 +297,13 @@ def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver
     out = []
     if solver is not None:
         linear = [_flux_operator(solver, d) for d in data]
-        lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None) for d, lin in zip(data, linear)]
+        lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None, with_load=False) for d, lin in zip(data, linear)]
+        linear = [([] if lin is None else [lin]) + _mass_operators(solver, d) for d, lin in zip(data, linear)]
         vertex = [_vertex_terms(d) for d in data]
+        w = solver.Y.TestFunction()[1]
+        fixed = [None if d.load is None else (d.load[0], lambda hat, src=d.load[1]: _times(hat, src(w))) for d in data]
         coefs = solver.solve([None if lf is None else (lambda hat, lf=lf: _times(hat, lf)) for lf in lfs], linear,
-                             vertex)
+                             vertex, fixed)
         for d, c in zip(data, coefs):
             sig = GridFunction(solver.X.components[0], name=d.name)
             sig.vec.FV().NumPy()[:] = c.ravel()

@@ -56,6 +56,9 @@ class EstimatorOptions:
         p >= 2: the multiplier of the equilibration takes the residual multiplier of :mod:`.boundary`
         where contact reaches the Dirichlet boundary (False: the moments-only multipliers there, whose
         eta decays half an order slower than the error when lam > 0 on the boundary).
+    closed_form : bool
+        :func:`.components.estimate_components` for P1 on affine elements: the element integrals in closed
+        form from per-mesh arrays (:mod:`.affine_p1`; the same values to round-off); False: by quadrature.
     """
 
     flux_order: Optional[int] = None
@@ -69,6 +72,7 @@ class EstimatorOptions:
     batched: bool = True
     res_tol: float = 1e-12
     boundary_multiplier: bool = True
+    closed_form: bool = True
 
     def __post_init__(self):
         def bad(name, want):
@@ -94,7 +98,7 @@ class EstimatorOptions:
             v = getattr(self, name)
             if v is not None and not positive(v):
                 bad(name, "a finite number > 0 or None")
-        for name in ("batched", "boundary_multiplier"):
+        for name in ("batched", "boundary_multiplier", "closed_form"):
             if not isinstance(getattr(self, name), bool):
                 bad(name, "True or False")
         if not (isinstance(self.res_tol, (int, float)) and not isinstance(self.res_tol, bool)

@@ -24,7 +24,9 @@ of the patch matrices (formed from the third call on, kept while they fit in
 of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
 :mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
 (:meth:`PatchSolver.operators`), so a new u_h costs three sparse products instead of three
-assemblies with the Hessian and element-boundary terms.
+assemblies with the Hessian and element-boundary terms; likewise the FE-mass-rule sources linear in a
+GridFunction (``PatchData.mass`` of :mod:`.flux`), and the load part of the sources is assembled once
+per load object (:meth:`PatchSolver.fixed_vectors`).
 
 Cost: ``PatchwiseSolve`` (NGSolve 6.2) loops over the vertices on one thread, recomputes the
 element matrices of every patch (three times per element) and inverts the full patch matrix
@@ -161,6 +163,7 @@ class PatchSolver:
         self.S_K = S_K
         self.A_II_inv = None  # formed from the third solve() on (as the patch inverses)
         self._ops = {}
+        self._fixed = {}
         self._inv_cache = {}
         self._calls = 0
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
@@ -263,7 +266,27 @@ class PatchSolver:
             S += z[:, :, None] * z[:, None, :]
         return S
 
-    def solve(self, lfs, linear=None, vertex=None) -> list:
+    def fixed_vectors(self, owner, lf_of_hat) -> np.ndarray:
+        """(3, Y.ndof): the assembled ``lf_of_hat(hat_i)``, kept while ``owner`` (the data the form is built of,
+        e.g. a load CoefficientFunction) is the same object; the last :attr:`FIXED_KEPT` owners are kept."""
+        hit = self._fixed.get(id(owner))
+        if hit is not None and hit[0] is owner:
+            return hit[1]
+        vecs = np.empty((3, self.Y.ndof))
+        with TaskManager():
+            for i, hat in enumerate(self.hats):
+                form = LinearForm(self.Y)
+                form += lf_of_hat(hat)
+                vecs[i] = form.Assemble().vec.FV().NumPy()
+        if len(self._fixed) >= self.FIXED_KEPT:
+            self._fixed.pop(next(iter(self._fixed)))
+        self._fixed[id(owner)] = (owner, vecs)  # the owner is referenced: its id stays unique
+        return vecs
+
+    #: owners of :meth:`fixed_vectors` kept (fields x a few data sets)
+    FIXED_KEPT = 8
+
+    def solve(self, lfs, linear=None, vertex=None, fixed=None) -> list:
         """Sums over the patches of the patch solutions, RT part, for several right-hand sides.
 
         Parameters
@@ -271,8 +294,8 @@ class PatchSolver:
         lfs : list of (callable or None)
             per field: hat (CoefficientFunction) -> SumOfIntegrals of the right-hand side on
             ``self.Y`` = V x Q (test functions of Y) with every integrand multiplied by hat.
-        linear : list of (tuple or None), optional
-            per field, a further right-hand side part ``(key, space, form_of_hat, coefficients,
+        linear : list of (tuple, list of tuples or None), optional
+            per field, further right-hand side parts ``(key, space, form_of_hat, coefficients,
             scale)``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
             form_of_hat)[i].
         vertex : list of (list or None), optional
@@ -281,6 +304,9 @@ class PatchSolver:
             patch-constant sources of :mod:`.flux` (exact for every degree and on curved elements,
             with :meth:`vertex_mass` of that ``bonus``), or g_a|_K = values[K, i] shape if ``shape``
             (a CoefficientFunction) is not None (:meth:`shaped_mass`).
+        fixed : list of (tuple or None), optional
+            per field, a further right-hand side part ``(owner, lf_of_hat)`` assembled once per owner
+            (:meth:`fixed_vectors`; the iterate-independent data such as the load f).
 
         Returns
         -------
@@ -292,17 +318,20 @@ class PatchSolver:
         self._calls += 1
         b = np.zeros((nf, 3, ne, nI))
         linear = [None] * nf if linear is None else linear
+        fixed = [None] * nf if fixed is None else fixed
         with TaskManager():
-            for f, (lf_of_hat, lin) in enumerate(zip(lfs, linear)):
-                mats = self.operators(*lin[:3]) if lin is not None else None
+            for f, (lf_of_hat, lin, fix) in enumerate(zip(lfs, linear, fixed)):
+                lins = [] if lin is None else (lin if isinstance(lin, list) else [lin])
+                mats = [self.operators(*part[:3]) for part in lins]
+                kept = self.fixed_vectors(*fix) if fix is not None else None
                 for i, hat in enumerate(self.hats):
-                    vec = np.zeros(self.Y.ndof)
+                    vec = np.zeros(self.Y.ndof) if kept is None else kept[i].copy()
                     if lf_of_hat is not None:
                         form = LinearForm(self.Y)
                         form += lf_of_hat(hat)
                         vec += form.Assemble().vec.FV().NumPy()
-                    if mats is not None:
-                        vec += lin[4] * (mats[i] @ lin[3])
+                    for part, ops in zip(lins, mats):
+                        vec += part[4] * (ops[i] @ part[3])
                     b[f, i, :, :nV] = vec[:self.offQ].reshape(ne, nV)
                     b[f, i, :, nV:] = vec[self.offQ:self.offF].reshape(ne, self.nQ)
         for f, terms in enumerate(vertex or []):
@@ -321,7 +350,7 @@ class PatchSolver:
                 # every (i, K) pair belongs to exactly one patch: plain fancy-index addition
                 b[f, i, K, nV:] += kappa[:, None, None] * self.mass_Q[K]
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
-        g = -np.einsum("kif,ski->skf", self.W, b.reshape(nf * 3, ne, nI)).reshape(nf, 3, ne, nF3)
+        g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
         msum = np.zeros((nf, ne * nF3))
         for gi, G in enumerate(self.groups):
             m = G["m"]

@@ -88,27 +88,57 @@ def friedrichs_constant(problem, mesh) -> float:
 class P0Dual:
     """||zeta|| for div zeta = rbar in P0, zeta in RT_0 free on the boundary: the RT_0
     mixed solution of -Lap phi = rbar, phi = 0, from the Crouzeix-Raviart solution
-    by Marini's formula zeta = -grad_h phi_CR + rbar/2 (x - x_K) (exact RT_0, Marini 1985)."""
+    by Marini's formula zeta = -grad_h phi_CR + rbar/2 (x - x_K) (exact RT_0, Marini 1985).
 
-    def __init__(self, mesh):
-        self.mesh = mesh
+    Built once per mesh: the CR stiffness A (factorized by SuperLU), the load map B (P0 -> CR, (rbar, v)) and, on
+    affine elements, J_K = ||x - x_K||_K^2; a norm then costs one solve:
+    ||zeta||^2 = phi^T A phi + sum_K rbar_K^2 J_K / 4 (grad_h phi is constant on K and (x - x_K, 1)_K = 0).
+    ``affine=False`` (curved elements): the load and ||zeta||^2 by quadrature of the functions themselves."""
+
+    def __init__(self, mesh, affine: bool = True):
+        self.mesh, self.affine = mesh, affine
         self._inv = None
 
-    def norm(self, rbar_values: np.ndarray) -> float:
+    def _setup(self):
+        from scipy.sparse import csr_matrix
+        from scipy.sparse.linalg import splu
+
         mesh = self.mesh
+        self.W = FESpace("nonconforming", mesh, dirichlet=DIRICHLET)
+        self.P0 = L2(mesh, order=0)
+        u, v = self.W.TnT()
+        a = BilinearForm(grad(u) * grad(v) * dx).Assemble()
+        load = BilinearForm(trialspace=self.P0, testspace=self.W)
+        load += self.P0.TrialFunction() * v * dx
+        load.Assemble()
+        self._B = csr_matrix(tuple(np.array(m) for m in load.mat.CSR()), shape=(self.W.ndof, self.P0.ndof))
+        self._A = csr_matrix(tuple(np.array(m) for m in a.mat.CSR()), shape=(self.W.ndof, self.W.ndof))
+        # SuperLU of the free block (an NGSolve inverse applied inside a TaskManager was ~8x slower here)
+        self._free = np.flatnonzero(np.array(list(self.W.FreeDofs()), dtype=bool))
+        self._inv = splu(self._A[self._free][:, self._free].tocsc())
+        self.centroid = GridFunction(VectorL2(mesh, order=0))
+        self.centroid.Set(CoefficientFunction((x, y)))
+        d = CoefficientFunction((x, y)) - self.centroid
+        self._J = Integrate(d * d * dx, mesh, element_wise=True).NumPy().copy()
+        self._phi = GridFunction(self.W)
+
+    def norm(self, rbar_values: np.ndarray) -> float:
         if self._inv is None:
-            self.W = FESpace("nonconforming", mesh, dirichlet=DIRICHLET)
-            u, v = self.W.TnT()
-            self._a = BilinearForm(grad(u) * grad(v) * dx).Assemble()
-            self._inv = self._a.mat.Inverse(self.W.FreeDofs(), inverse="sparsecholesky")
-            self.centroid = GridFunction(VectorL2(mesh, order=0))
-            self.centroid.Set(CoefficientFunction((x, y)))
-        rbar = GridFunction(L2(mesh, order=0))
-        rbar.vec.FV().NumPy()[:] = rbar_values
-        phi = GridFunction(self.W)
-        phi.vec.data = self._inv * LinearForm(rbar * self.W.TestFunction() * dx).Assemble().vec
-        zeta = -grad(phi) + 0.5 * rbar * (CoefficientFunction((x, y)) - self.centroid)
-        return math.sqrt(max(Integrate(zeta * zeta * dx, mesh), 0.0))
+            self._setup()
+        rbar_values = np.asarray(rbar_values, dtype=float)
+        if self.affine:
+            load = self._B @ rbar_values
+        else:  # the quadrature of the linear form (not polynomial on curved elements)
+            rbar = GridFunction(self.P0)
+            rbar.vec.FV().NumPy()[:] = rbar_values
+            load = LinearForm(rbar * self.W.TestFunction() * dx).Assemble().vec.FV().NumPy()
+        pv = np.zeros(self.W.ndof)
+        pv[self._free] = self._inv.solve(load[self._free])
+        if self.affine:
+            return math.sqrt(max(float(pv @ (self._A @ pv)) + 0.25 * float((rbar_values ** 2 * self._J).sum()), 0.0))
+        self._phi.vec.FV().NumPy()[:] = pv
+        zeta = -grad(self._phi) + 0.5 * rbar * (CoefficientFunction((x, y)) - self.centroid)
+        return math.sqrt(max(Integrate(zeta * zeta * dx, self.mesh), 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,10 +173,14 @@ class Integrals:
         if "area" not in cache:
             cache["area"] = Integrate(CoefficientFunction(1.0) * dx, mesh, element_wise=True).NumPy().copy()
         if "dual" not in cache:
-            cache["dual"] = P0Dual(mesh)
+            cache["dual"] = P0Dual(mesh, affine=not dv.curved)
+        if "h" not in cache:
+            cache["h"] = element_diameters(mesh)
+        if "C_F" not in cache:
+            cache["C_F"] = friedrichs_constant(dv.problem, mesh)
         bonus = dv.quad_bonus + 4 if options.quad_bonus is None else options.quad_bonus
-        C_F = friedrichs_constant(dv.problem, mesh) if options.friedrichs is None else float(options.friedrichs)
-        return cls(mesh=mesh, bonus=bonus, h=element_diameters(mesh), area=cache["area"], C_F=C_F,
+        C_F = cache["C_F"] if options.friedrichs is None else float(options.friedrichs)
+        return cls(mesh=mesh, bonus=bonus, h=cache["h"], area=cache["area"], C_F=C_F,
                    C_mu=math.sqrt(sum(1.0 / mu for mu in dv.mus)), dual=cache["dual"])
 
     @property
@@ -158,18 +192,23 @@ class Integrals:
         return Integrate(cf * (self.dxq if dxx is None else dxx), self.mesh, element_wise=True).NumPy().copy()
 
 
-def flux_residual(ig: Integrals, fields, sigmas, grads, data):
+def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None):
     """eta_F,K,a, eta_R,K,a (arrays (nfields, ne)), eta_FR = (sum_K sum_a (eta_F + eta_R)^2)^{1/2} and
-    eta_quad for fluxes with div sigma_a ~ f_a + data_a (module doc)."""
+    eta_quad for fluxes with div sigma_a ~ f_a + data_a (module doc).  ``parts``: i -> (||fl||_K^2,
+    ||res||_K^2, element means of res) of field i computed elsewhere (:mod:`.affine_p1`)."""
     eta_F, eta_R = np.zeros((len(fields), ig.mesh.ne)), np.zeros((len(fields), ig.mesh.ne))
     rbar = []
     for i, (fd, sig, gu, m) in enumerate(zip(fields, sigmas, grads, data)):
         mu = fd.mu
-        fl = math.sqrt(mu) * gu + sig / math.sqrt(mu)
-        eta_F[i] = np.sqrt(np.maximum(ig.ew(fl * fl), 0.0))                                  # eta_F,K,alpha
-        res = fd.f + m - div(sig)
-        eta_R[i] = ig.h / math.pi / math.sqrt(mu) * np.sqrt(np.maximum(ig.ew(res * res), 0.0))  # eta_R,K,alpha
-        rbar.append(ig.ew(res, dx(bonus_intorder=ig.bonus + 8)) / ig.area)
+        if parts is None:
+            fl = math.sqrt(mu) * gu + sig / math.sqrt(mu)
+            res = fd.f + m - div(sig)
+            fl2, res2, mean = ig.ew(fl * fl), ig.ew(res * res), ig.ew(res, dx(bonus_intorder=ig.bonus + 8)) / ig.area
+        else:
+            fl2, res2, mean = parts(i)
+        eta_F[i] = np.sqrt(np.maximum(fl2, 0.0))                                           # eta_F,K,alpha
+        eta_R[i] = ig.h / math.pi / math.sqrt(mu) * np.sqrt(np.maximum(res2, 0.0))          # eta_R,K,alpha
+        rbar.append(mean)
     eta_FR = float(np.sqrt(((eta_F + eta_R) ** 2).sum()))
     return eta_F, eta_R, eta_FR, mean_term(ig, rbar, [fd.mu for fd in fields], eta_FR)
 
@@ -184,12 +223,16 @@ def mean_term(ig: Integrals, rbar, mus, eta_FR, negligible: float = 1e-3) -> flo
     return math.sqrt(total)
 
 
-def defect_norm(ig: Integrals, delta, ref: float):
+def defect_norm(ig: Integrals, delta, ref: float, parts=None):
     """C_mu [(sum_K (h_K/pi)^2 ||delta - delta_K||_K^2)^{1/2} + ||zeta(delta_K)||]: bound of
     sup_z (delta, z1 - z2) / |||z||| (module doc), and the element parts (h_K/pi)^2 ||delta - delta_K||_K^2.
-    The RT_0 solve is skipped when C_F ||delta_K|| is below 1e-3 ``ref``."""
-    dbar = ig.ew(delta) / ig.area
-    loc_K = (ig.h / math.pi) ** 2 * np.maximum(ig.ew(delta * delta) - dbar ** 2 * ig.area, 0.0)
+    The RT_0 solve is skipped when C_F ||delta_K|| is below 1e-3 ``ref``.  ``parts``: (element means,
+    ||delta - delta_K||_K^2) computed elsewhere."""
+    if parts is None:
+        dbar = ig.ew(delta) / ig.area
+        parts = dbar, ig.ew(delta * delta) - dbar ** 2 * ig.area
+    dbar, free2 = parts
+    loc_K = (ig.h / math.pi) ** 2 * np.maximum(free2, 0.0)
     dnorm = ig.C_F * math.sqrt(float((dbar ** 2 * ig.area).sum()))
     if dnorm > 1e-3 * max(ref, np.finfo(float).tiny):
         dnorm = min(dnorm, ig.dual.norm(dbar))
