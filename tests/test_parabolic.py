@@ -131,6 +131,21 @@ def test_rings_short_run_krylov(newton, cfun):
     assert r.rows[-1]["active_disk"] > 0 and r.rows[-1]["active_ring"] == 0
 
 
+def test_rings_short_run_cg_algebraic_multigrid():
+    """--krylov cg: CG + algebraic multigrid in the Krylov modes, the same solution as the direct steps."""
+    sc = load_scene("parabolic_rings")
+    d, _, _ = run_parabolic_scene(sc, dict(sc.test_options, t_final=0.03))
+    r, _, _ = run_parabolic_scene(sc, dict(sc.test_options, t_final=0.03, newton="gmres", krylov="cg"))
+    g, _, _ = run_parabolic_scene(sc, dict(sc.test_options, t_final=0.03, newton="gmres"))
+    assert r.converged and r.summary["gmres_total"] > 0
+    assert r.summary["gmres_total"] != g.summary["gmres_total"]  # another Krylov method did the steps
+    K = d.stepper.K
+    diff = r.x - d.x
+    assert float(np.sqrt(diff @ (K @ diff))) <= 1e-9 * float(np.sqrt(d.x @ (K @ d.x)))
+    with pytest.raises(ValueError, match="option krylov"):
+        ParabolicOptions(krylov="cg")
+
+
 @pytest.mark.slow
 def test_adaptive_dt_takes_fewer_steps():
     sc = load_scene("parabolic_disk")

@@ -27,7 +27,7 @@ def cmd_run_parabolic(scene, args, argv) -> int:
     given = dict(order=args.order, dt=args.dt, t_final=args.t_final, newton=args.newton, cfun=args.cfun, tol=args.tol,
                  maxit=args.maxit, estimate=True if args.estimate else None, gamma_alg=args.gamma_alg,
                  gamma_lin=args.gamma_lin, nu=args.nu, adaptive_dt=True if args.adaptive_dt else None,
-                 level=args.level, maxh=args.maxh)
+                 level=args.level, maxh=args.maxh, krylov=args.krylov)
     if args.test:
         if not scene.test_options:
             raise UsageError(f"option --test needs TEST_OPTIONS in the scene file ({scene.name} has none)")

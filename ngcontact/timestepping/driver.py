@@ -61,6 +61,7 @@ class ParabolicOptions:
     gamma_lin: float = 1e-3
     gamma_alg: float = 1e-3
     nu: int = 10
+    krylov: str = "gmres"  # Krylov modes: 'gmres' (GMRES + ILU, [CMAME20]) or 'cg' (CG + algebraic multigrid)
     estimate: bool = False  # the step estimator and the space-time bound
     adaptive_dt: bool = False
     dt_min: Optional[float] = None  # default dt / 64
@@ -91,7 +92,11 @@ class ParabolicOptions:
                                                            line_search=self.line_search))
         set_(self, "stop", AdaptiveStop(self.gamma_lin) if self.newton == "adaptive" else None)
         if self.newton != "direct":
-            set_(self, "krylov", KrylovSolve(mode=self.newton, gamma_alg=self.gamma_alg, nu=self.nu))
+            set_(self, "krylov_solve", KrylovSolve(mode=self.newton, gamma_alg=self.gamma_alg, nu=self.nu,
+                                                   method=self.krylov))
+        elif self.krylov != "gmres":
+            raise option_error("krylov", self.krylov, "'gmres' (the default) with newton 'direct', which solves no "
+                                                      "Krylov system; 'cg' needs newton gmres, inexact or adaptive")
 
     @property
     def needs_estimator(self) -> bool:
@@ -163,7 +168,7 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
     direct = SharedDirectSolve() if o.newton == "direct" else None
     linear = direct
     if o.newton != "direct":
-        linear = replace(o.krylov, estimator=est) if o.newton == "adaptive" else o.krylov
+        linear = replace(o.krylov_solve, estimator=est) if o.newton == "adaptive" else o.krylov_solve
     res = ParabolicResult(stepper=stepper, bins=bins)
     x, y, t, dt, n = stepper.x0, stepper.y0, 0.0, o.dt, 0
     dt_min, dt_max = o.dt_min or o.dt / 64, o.dt_max or 64 * o.dt
