@@ -111,6 +111,15 @@ class KrylovResult:
     time: float = 0.0
 
 
+def _krylov_start(A, b, x0, M):
+    """(preconditioner, x^0, scale = ||b|| (1 if b = 0), r^0 = b - A x^0, ||r^0||) of :func:`gmres` and :func:`cg`."""
+    prec = (lambda v: v) if M is None else M.solve
+    x = np.zeros(len(b)) if x0 is None else np.array(x0, dtype=float)
+    bnorm = float(np.linalg.norm(b))
+    r = b - A @ x
+    return prec, x, (bnorm if bnorm > 0 else 1.0), r, float(np.linalg.norm(r))
+
+
 def gmres(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float = 1e-10,
           restart: int = 100, maxiter: int = 5000, nu: int = 10,
           monitor: Optional[Callable[[KrylovState], bool]] = None) -> KrylovResult:
@@ -142,12 +151,7 @@ def gmres(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: fl
     """
     t0 = time.perf_counter()
     n = len(b)
-    prec = (lambda v: v) if M is None else M.solve
-    x = np.zeros(n) if x0 is None else np.array(x0, dtype=float)
-    bnorm = float(np.linalg.norm(b))
-    scale = bnorm if bnorm > 0 else 1.0
-    r = b - A @ x
-    beta = float(np.linalg.norm(r))
+    prec, x, scale, r, beta = _krylov_start(A, b, x0, M)
     hist = [beta / scale]
     i = 0
 
@@ -232,12 +236,7 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
     true residuals do not change the iteration (no restart: CG keeps its conjugacy).
     """
     t0 = time.perf_counter()
-    prec = (lambda v: v) if M is None else M.solve
-    x = np.zeros(len(b)) if x0 is None else np.array(x0, dtype=float)
-    bnorm = float(np.linalg.norm(b))
-    scale = bnorm if bnorm > 0 else 1.0
-    r = b - A @ x
-    rnorm = float(np.linalg.norm(r))
+    prec, x, scale, r, rnorm = _krylov_start(A, b, x0, M)
     hist = [rnorm / scale]
     i = 0
 
