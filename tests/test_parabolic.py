@@ -181,3 +181,17 @@ def test_cli_time_dependent_usage_errors(args, msg, capsys, tmp_path):
     assert main([*args, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert msg in err and len(err.strip().splitlines()) == 1
+
+
+def test_manufactured_refinement_in_h_and_dt_keeps_effectivity():
+    """The study's refinement (ngcontact.studies.parabolic.MMS_H: dt0 / 2^(p l) on level l), P1, two levels:
+    the space-time error halves and the estimate stays a bound within 1.5 of it."""
+    from ngcontact.studies.parabolic import MMS_H, _run
+    from ngcontact.timestepping.run import scene_mesh
+
+    sc = load_scene("parabolic_manufactured")
+    dt0, _ = MMS_H[1]
+    s = [_run(sc, scene_mesh(sc, {"level": lev}), order=1, dt=dt0 / 2 ** lev, t_final=0.04, estimate=True)[1]
+         for lev in (0, 1)]
+    assert all(r["bound_proven"] and 1.0 <= r["i_eff"] <= 1.5 for r in s), [r["i_eff"] for r in s]
+    assert 1.8 < s[0]["err_spacetime"] / s[1]["err_spacetime"] < 2.2
