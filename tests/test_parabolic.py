@@ -128,6 +128,9 @@ def test_rings_short_run_krylov(newton, cfun):
     r, _, _ = run_parabolic_scene(sc, dict(sc.test_options, t_final=0.03, newton=newton, cfun=cfun))
     assert r.converged and len(r.rows) == 3
     assert r.summary["gmres_total"] > 0
+    # one preconditioner per distinct reduced matrix: step 1's last matrix serves step 2's first iteration
+    assert r.summary["preconditioners_reused"] > 0
+    assert r.summary["preconditioners_built"] + r.summary["preconditioners_reused"] == r.summary["newton_total"]
     assert r.rows[-1]["active_disk"] > 0 and r.rows[-1]["active_ring"] == 0
 
 
@@ -195,3 +198,21 @@ def test_manufactured_refinement_in_h_and_dt_keeps_effectivity():
          for lev in (0, 1)]
     assert all(r["bound_proven"] and 1.0 <= r["i_eff"] <= 1.5 for r in s), [r["i_eff"] for r in s]
     assert 1.8 < s[0]["err_spacetime"] / s[1]["err_spacetime"] < 2.2
+
+
+def test_preconditioner_cache_reuses_only_identical_matrices():
+    import scipy.sparse as sp
+
+    from ngcontact.algebra.krylov import PreconditionerCache
+
+    A = sp.diags([2.0, 3.0, 4.0]).tocsr()
+    cache, built = PreconditionerCache(size=2), []
+    M1, r1 = cache.get(A, lambda: built.append(1) or "M1")
+    M2, r2 = cache.get(A.copy(), lambda: built.append(2) or "M2")
+    assert (M1, r1, M2, r2) == ("M1", False, "M1", True)
+    B = A.copy()
+    B.data[1] = 3.0 + 1e-15  # one value changed in the last bits
+    assert cache.get(B, lambda: "MB") == ("MB", False)
+    assert cache.get(A, lambda: "M3", extra=[0, 2]) == ("M3", False)  # other kept unknowns
+    assert cache.get(A, lambda: "M4") == ("M4", False)  # size 2: the first entry was dropped
+    assert (cache.hits, cache.misses) == (1, 4)

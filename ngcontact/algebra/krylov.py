@@ -44,7 +44,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["ILU", "KrylovState", "KrylovResult", "gmres", "cg"]
+__all__ = ["ILU", "KrylovState", "KrylovResult", "PreconditionerCache", "gmres", "cg"]
 
 
 class ILU:
@@ -67,6 +67,40 @@ class ILU:
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         return self._ilu.solve(r) if self.n else np.zeros(0)
+
+
+class PreconditionerCache:
+    """The preconditioners of the last ``size`` matrices, handed out again only for a bitwise identical
+    matrix (same shape, sparsity and values; plus ``extra``, e.g. the kept unknowns of a truncated
+    multigrid), so reuse never changes an iterate.  In a time-stepping run with Newton-min the reduced
+    Newton matrix of a step's first iteration is the previous step's last one whenever the active set
+    and dt did not change.  ``hits`` / ``misses`` count the look-ups."""
+
+    def __init__(self, size: int = 2):
+        self.size, self.hits, self.misses = size, 0, 0
+        self._items: list = []  # (key, preconditioner), most recent last
+
+    @staticmethod
+    def _key(A, extra) -> tuple:
+        import hashlib
+
+        A = sp.csr_matrix(A)
+        h = hashlib.blake2b(digest_size=16)
+        for arr in (A.indptr, A.indices, A.data) + ((np.asarray(extra),) if extra is not None else ()):
+            h.update(np.ascontiguousarray(arr).tobytes())
+        return A.shape, A.nnz, h.hexdigest()
+
+    def get(self, A, build: Callable, extra=None):
+        """(preconditioner, reused): the cached one for this matrix, else ``build()`` (then cached)."""
+        key = self._key(A, extra)
+        for k, M in self._items:
+            if k == key:
+                self.hits += 1
+                return M, True
+        self.misses += 1
+        M = build()
+        self._items = (self._items + [(key, M)])[-self.size:]
+        return M, False
 
 
 @dataclass

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import List
 
 import numpy as np
@@ -182,6 +182,7 @@ class KrylovSolve:
     estimator: object = None
     method: str = "gmres"        # KRYLOV_METHODS: GMRES + ILU, or CG + multigrid
     prolongations: tuple = ()    # cg: the nested hierarchy of the geometric multigrid (else algebraic multigrid)
+    preconditioner_cache: object = field(default=None, compare=False)  # PreconditionerCache shared by solves
     record_type = KrylovIterationRecord
 
     def __post_init__(self):
@@ -221,8 +222,11 @@ class _KrylovSession:
         lin = system.linearize(x, y, c, Ca, Cb)
         Bnorm = rhs_norm(system, x, y, c, Ca, Cb)
         bred = float(np.linalg.norm(lin.b)) or 1.0
-        M = _MultigridPreconditioner(lin, opt.prolongations) if opt.method == "cg" else \
-            ILU(lin.A, opt.ilu_drop_tol, opt.ilu_fill)
+        build = (lambda: _MultigridPreconditioner(lin, opt.prolongations)) if opt.method == "cg" else \
+            (lambda: ILU(lin.A, opt.ilu_drop_tol, opt.ilu_fill))
+        M, reused = (build(), False) if opt.preconditioner_cache is None else \
+            opt.preconditioner_cache.get(lin.A, build, extra=getattr(lin, "keep", None))
+        time_setup = 0.0 if reused else M.time_setup
         z0 = lin.restrict(x)
         self.t_est, self.n_est = 0.0, 0
         accepted = {}
@@ -266,7 +270,7 @@ class _KrylovSession:
         else:
             kr = gmres(lin.A, lin.b, z0, M, rtol=rtol, restart=opt.restart, maxiter=opt.max_gmres, nu=opt.nu,
                        monitor=monitor)
-        time_linear = time.perf_counter() - tl - self.t_est + M.time_setup
+        time_linear = time.perf_counter() - tl - self.t_est + time_setup
         self.gmres_cum += kr.iterations
         if accepted:
             xf, yf, i_acc, comp, res_alg = (accepted[key] for key in ("x", "y", "i", "comp", "res_alg"))
@@ -280,7 +284,7 @@ class _KrylovSession:
         self.prev = (x, y, c, Ca, Cb)
         return Trial(xf, yf, time_linear, dict(
             linear_size=lin.size, gmres_its=kr.iterations, gmres_cum=self.gmres_cum, gmres_accepted=i_acc,
-            gmres_stop=GMRES_STOP[kr.reason], res_alg=res_alg, time_ilu=M.time_setup,
+            gmres_stop=GMRES_STOP[kr.reason], res_alg=res_alg, time_ilu=time_setup,
             ilu_fill_ratio=M.nnz / max(lin.A.nnz, 1) if M.nnz is not None else float("nan")))
 
     def after_step(self, k, x, y, step) -> dict:

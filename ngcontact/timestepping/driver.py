@@ -4,7 +4,8 @@
 to T: per step the step system of :class:`.euler.BackwardEuler`, semismooth Newton warm-started from
 the previous step (Newton-min or Fischer-Burmeister; direct solves with factorizations shared across
 steps, or GMRES + ILU in the modes ``gmres`` / ``inexact`` / ``adaptive`` of the existing Krylov
-strategy; in ``adaptive`` the estimators of the step stop GMRES and Newton, [CMAME20] with
+strategy, with the preconditioner of a reduced matrix reused for later Newton iterations and steps
+that produce the bitwise same matrix (:class:`~ngcontact.algebra.krylov.PreconditionerCache`); in ``adaptive`` the estimators of the step stop GMRES and Newton, [CMAME20] with
 gamma_alg = gamma_lin = 1e-3), then optionally the step's estimator (:mod:`.estimate`) and errors.
 Newton takes full steps by default (``line_search=False``), also with Fischer-Burmeister: started
 from the previous time step it converged at every step of test 6.2, whereas the Armijo search on
@@ -29,6 +30,7 @@ from typing import Callable, Optional
 import numpy as np
 from ngsolve import IfPos, Integrate
 
+from ..algebra.krylov import PreconditionerCache
 from ..newton import AdaptiveStop, KrylovSolve, NewtonOptions, semismooth_newton
 from ..newton.base import option_error
 from .estimate import SpaceTimeEstimate, StepEstimator, TimeIntegrals, hypotheses, spatial_part
@@ -168,7 +170,8 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
     direct = SharedDirectSolve() if o.newton == "direct" else None
     linear = direct
     if o.newton != "direct":
-        linear = replace(o.krylov_solve, estimator=est) if o.newton == "adaptive" else o.krylov_solve
+        linear = replace(o.krylov_solve, estimator=est if o.newton == "adaptive" else None,
+                         preconditioner_cache=PreconditionerCache())
     res = ParabolicResult(stepper=stepper, bins=bins)
     x, y, t, dt, n = stepper.x0, stepper.y0, 0.0, o.dt, 0
     dt_min, dt_max = o.dt_min or o.dt / 64, o.dt_max or 64 * o.dt
@@ -245,6 +248,9 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
          "gmres_total": cum["gmres"], "factorizations_total": cum["fact"], "rejected_steps": cum["rejected"],
          "converged": res.converged, "time_total_s": time.perf_counter() - t_start}
     s.update({f"onset_{k}": v for k, v in onset.items()})
+    if o.newton != "direct":
+        cache = linear.preconditioner_cache
+        s.update(preconditioners_built=cache.misses, preconditioners_reused=cache.hits)
     if est is not None:
         s.update(st.summary())
     if exact:
