@@ -5,8 +5,9 @@ to T: per step the step system of :class:`.euler.BackwardEuler`, semismooth Newt
 the previous step (Newton-min or Fischer-Burmeister; direct solves with factorizations shared across
 steps, or GMRES + ILU in the modes ``gmres`` / ``inexact`` / ``adaptive`` of the existing Krylov
 strategy, with the preconditioner of a reduced matrix reused for later Newton iterations and steps
-that produce the bitwise same matrix (:class:`~ngcontact.algebra.krylov.PreconditionerCache`); in ``adaptive`` the estimators of the step stop GMRES and Newton, [CMAME20] with
-gamma_alg = gamma_lin = 1e-3), then optionally the step's estimator (:mod:`.estimate`) and errors.
+that produce the bitwise same matrix (:class:`~ngcontact.algebra.krylov.PreconditionerCache`); in
+``adaptive`` the estimators of the step stop GMRES and Newton, [CMAME20] with gamma_alg = gamma_lin =
+1e-3), then optionally the step's estimator (:mod:`.estimate`) and errors.
 Newton takes full steps by default (``line_search=False``), also with Fischer-Burmeister: started
 from the previous time step it converged at every step of test 6.2, whereas the Armijo search on
 ||Phi||^2 stalled at ||Phi||/||F|| ~ 1e-8 at some steps where contact begins (5 of 100 steps,
