@@ -1,8 +1,9 @@
 """Parabolic disk test 6.1 of [CMAME20]: the stationary [JSC20] disk data for all times, X0 = [g, 0, 0], T = 0.3.
 
 Unit disk, mu1 = mu2 = 1, g = 0.05 (u1 = g, u2 = 0 on the boundary); f1, f2 of the ``disk`` scene
-(constant in t).  Contact starts before t = 0.17 ([CMAME20]); the solution tends to the stationary
-[JSC20] solution (its ``exact``: the summary's ``dist_stationary_T`` is the energy distance at T).
+(constant in t).  [CMAME20]: contact starts before t = 0.17; the radial equation of u1 - u2 gives
+t* = 0.172 (``ngcontact.studies.parabolic.disk_onset_radial``, results/parabolic/REPORT.md); the
+solution tends to the stationary [JSC20] solution (its ``exact``: the summary's ``dist_stationary_T`` is the energy distance at T).
 Mesh fitted to the stationary free boundary r = 1/sqrt(2) (``disk_fitted``); ``FITTED = False`` in a
 copy of this file gives the unfitted disk meshes of ``disk``.
 """

@@ -216,3 +216,15 @@ def test_preconditioner_cache_reuses_only_identical_matrices():
     assert cache.get(A, lambda: "M3", extra=[0, 2]) == ("M3", False)  # other kept unknowns
     assert cache.get(A, lambda: "M4") == ("M4", False)  # size 2: the first entry was dropped
     assert (cache.hits, cache.misses) == (1, 4)
+
+
+def test_disk_onset_matches_the_radial_problem():
+    """Test 6.1: the FEM contact onset (level 1, dt = 1e-3) against the onset of the radial heat equation
+    of w = u1 - u2 solved by finite differences (ngcontact.studies.parabolic.disk_onset_radial)."""
+    from ngcontact.studies.parabolic import disk_onset_radial
+
+    t_star, r_star = disk_onset_radial(n=1000, dt=1e-4)
+    assert 0.17 < t_star < 0.175 and 0.5 < r_star < 0.65
+    sc = load_scene("parabolic_disk")
+    r, _, _ = run_parabolic_scene(sc, dict(dt=1e-3, t_final=0.18, level=1))
+    assert abs(r.summary["onset_disk"] - t_star) <= 2e-3  # one step of 1e-3 plus the spatial error
