@@ -29,6 +29,7 @@ from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integr
                      dx, grad)
 
 from ..algebra.multigrid import field_prolongation, p1_prolongation
+from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
 from ..domains import DIRICHLET
 from ..problems.base import check_data_on_points
@@ -36,6 +37,7 @@ from .base import Discretization, assemble_load, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
 from .lagrange import LagrangeNodes, meshpoints
 from .nodesets import constraint_node_set
+from .p1 import dirichlet_vertices, p1_lumped_weights, p1_stiffness, p1_tables
 
 __all__ = ["FEMDiscretization"]
 
@@ -91,26 +93,44 @@ class FEMDiscretization(Discretization):
         if getattr(problem.domain, "curved", False) and order > 1:
             mesh.Curve(order)
         self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
-        self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" else LagrangeNodes.build(fes, node_set)
-        free = np.array(list(fes.FreeDofs()), dtype=bool)
+        # P1 on straight triangles: numpy set-up from the vertex arrays (discretizations.p1), same matrices
+        tables = p1_tables(mesh, fes) if constraints != "bernstein" else None
+        bnd = dirichlet_vertices(mesh, DIRICHLET, fes) if tables is not None else None
+        if bnd is None:
+            tables = None
+            self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" \
+                else LagrangeNodes.build(fes, node_set)
+            free = np.array(list(fes.FreeDofs()), dtype=bool)
+        else:
+            self.nodes = nodes = LagrangeNodes.from_p1_tables(fes, *tables)
+            free = ~bnd
         self.interior = np.flatnonzero(free)
         self.boundary = np.flatnonzero(~free)
         ni = len(self.interior)
 
-        # data at the nodes, checked once
-        data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()}
+        # data at the nodes, checked once (P1 set-up: Dirichlet data at the boundary nodes only, the only
+        # nodes where they are used and checked)
+        data = {name: nodes.evaluate(cf) if tables is None or name not in problem.dirichlet_names
+                else _on_boundary(nodes, cf, self.boundary) for name, cf in problem.data().items()}
         check_data_on_points(problem, data, ~free, nodes.coords)
         coef = {name: nodes.from_values(v) for name, v in data.items()}  # coefficients of the interpolants
 
         u, v = fes.TnT()
-        with TaskManager():
-            S = BilinearForm(grad(u) * grad(v) * dx).Assemble()
-            ones = LinearForm(v * dx).Assemble()
-        self.S = nodes.transform(scipy_csr(S))
-        Sii = self.S[self.interior][:, self.interior]
-        Sib = self.S[self.interior][:, self.boundary]
+        if tables is None:
+            with TaskManager():
+                S = BilinearForm(grad(u) * grad(v) * dx).Assemble()
+                ones = LinearForm(v * dx).Assemble()
+            S = nodes.transform(scipy_csr(S))
+            weights = nodes.T.T @ ones.vec.FV().NumPy() if order == 1 else None
+            del ones
+        else:
+            S, weights = p1_stiffness(*tables), p1_lumped_weights(*tables)
+        del tables
+        Sii = submatrix(S, self.interior, self.interior)
+        Sib = submatrix(S, self.interior, self.boundary)
+        del S
         # D: lumped weights (psi_a, 1) for p = 1, identity (dual basis) for p >= 2
-        self.D = (nodes.T.T @ ones.vec.FV().NumPy())[self.interior] if order == 1 else np.ones(ni)
+        self.D = weights[self.interior] if order == 1 else np.ones(ni)
 
         self.lift = []  # nodal Dirichlet values of each field (zero inside)
         F = []
@@ -121,7 +141,8 @@ class FEMDiscretization(Discretization):
             self.lift.append(gb)
             F.append(Fn[self.interior] - mu * (Sib @ gb[self.boundary]))
         self.nfields = problem.nfields
-        K = _block_diag_csr([mu * Sii for mu in problem.mus])
+        K = _block_diag_csr([Sii if mu == 1.0 else mu * Sii for mu in problem.mus])  # 1.0 * s == s exactly
+        del Sii
         if problem.obstacle is None:  # u1 - u2 >= 0
             up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
         else:  # u - psi >= 0
@@ -258,6 +279,13 @@ class FEMDiscretization(Discretization):
             emax = max(emax, float(np.max(np.abs(exact_nodal - self.nodes.to_values(nodal[name])))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
+
+
+def _on_boundary(nodes, cf, boundary: np.ndarray) -> np.ndarray:
+    """Values of ``cf`` at the ``boundary`` nodes, zero at the other nodes."""
+    out = np.zeros(nodes.ndof)
+    out[boundary] = nodes.evaluate(cf, boundary)
+    return out
 
 
 def _parent_p1_values(previous, fine, values):
