@@ -10,7 +10,7 @@ from ngcontact import CrissCrossSquare, StructuredSquare
 from ngcontact.algebra.sparse import assemble_csr, submatrix
 from ngcontact.discretizations.base import scipy_csr
 from ngcontact.discretizations.lagrange import LagrangeNodes
-from ngcontact.discretizations.p1 import dirichlet_vertices, p1_lumped_weights, p1_stiffness, p1_tables
+from ngcontact.discretizations.p1 import dirichlet_vertices, p1_matrices, p1_tables
 from ngcontact.domains import DIRICHLET, LShape, UnitDisk
 from ngcontact.scenes import load_scene
 
@@ -35,11 +35,10 @@ def test_p1_matrices_are_ngsolves(name):
     assert tables is not None
     u, v = fes.TnT()
     S = scipy_csr(BilinearForm(grad(u) * grad(v) * dx).Assemble())
-    K = p1_stiffness(*tables)
+    K, w = p1_matrices(*tables)
     assert K.shape == S.shape and K.nnz == S.nnz  # the same pattern (every vertex pair of a triangle)
     assert abs(K - S).max() <= 1e-13 * abs(S).max()
     ones = LinearForm(v * dx).Assemble().vec.FV().NumPy()
-    w = p1_lumped_weights(*tables)
     assert np.abs(w - ones).max() <= 1e-14 * ones.max()
     bnd = dirichlet_vertices(mesh, DIRICHLET, fes)
     assert np.array_equal(~bnd, np.array(list(fes.FreeDofs()), dtype=bool))
@@ -98,11 +97,17 @@ def test_fem_p1_fast_setup_matches_the_general_path(monkeypatch, scene, mesh):
     assert all(np.array_equal(p, q) for p, q in zip(fast.lift, ref.lift))
 
 
-def test_fem_p2_path_unchanged(monkeypatch):
-    problem = load_scene("test1").problem
-    m = problem.domain.mesh(0)
-    a, b = fem.FEMDiscretization(problem, m, order=2), _general(monkeypatch, problem, m, order=2)
-    assert (a.system.K != b.system.K).nnz == 0 and np.array_equal(a.system.F, b.system.F)
+def test_fem_p2_system_is_the_two_step_extraction():
+    """Order 2 (general path): K and F are, bitwise, those of the Lagrange-basis matrix indexed in two steps."""
+    problem = load_scene("ex9_obstacle").problem
+    disc = fem.FEMDiscretization(problem, problem.domain.mesh(0), order=2)
+    u, v = disc.fes.TnT()
+    S = disc.nodes.transform(scipy_csr(BilinearForm(grad(u) * grad(v) * dx).Assemble()))
+    i, b = disc.interior, disc.boundary
+    K = S[i][:, i]
+    assert all(np.array_equal(getattr(disc.system.K, a), getattr(K, a)) for a in ("indptr", "indices", "data"))
+    F = -(S[i][:, b] @ disc.lift[0][b])  # f = 0
+    assert np.array_equal(disc.system.F, F)
 
 
 @pytest.mark.parametrize("rows, cols", [("mask", "mask"), ("index", "index"), ("index", "all")])
@@ -139,3 +144,12 @@ def test_assemble_csr_chunks_agree():
         np.add.at(dense, (E[e][:, None], E[e][None, :]), loc[e])
     assert np.abs(one.toarray() - dense).max() <= 1e-14 and np.abs(many.toarray() - dense).max() <= 1e-14
     assert one.has_sorted_indices and many.has_sorted_indices and one.nnz == many.nnz
+
+
+def test_parent_pairs_are_kept_for_their_coarse_level_only():
+    problem = load_scene("ex9_obstacle").problem
+    d0, d1, d2 = (fem.FEMDiscretization(problem, m, order=1) for m in problem.domain.meshes(3))
+    pairs = fem._parent_pairs(d1, d2)
+    assert pairs is not None and fem._parent_pairs(d1, d2) is pairs
+    assert fem._parent_pairs(d0, d2) is None  # not the parent level: checked afresh, refused
+    assert fem._parent_pairs(d0, d1) is not None

@@ -22,6 +22,7 @@ field and g = X - psi.
 from __future__ import annotations
 
 import time
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -37,7 +38,7 @@ from .base import Discretization, assemble_load, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
 from .lagrange import LagrangeNodes, meshpoints
 from .nodesets import constraint_node_set
-from .p1 import dirichlet_vertices, p1_lumped_weights, p1_stiffness, p1_tables
+from .p1 import dirichlet_vertices, p1_matrices, p1_tables
 
 __all__ = ["FEMDiscretization"]
 
@@ -108,10 +109,9 @@ class FEMDiscretization(Discretization):
         self.boundary = np.flatnonzero(~free)
         ni = len(self.interior)
 
-        # data at the nodes, checked once (P1 set-up: Dirichlet data at the boundary nodes only, the only
-        # nodes where they are used and checked)
-        data = {name: nodes.evaluate(cf) if tables is None or name not in problem.dirichlet_names
-                else _on_boundary(nodes, cf, self.boundary) for name, cf in problem.data().items()}
+        # data at the nodes, checked once
+        data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()} if tables is None \
+            else _p1_data(problem, nodes, self.boundary)
         check_data_on_points(problem, data, ~free, nodes.coords)
         coef = {name: nodes.from_values(v) for name, v in data.items()}  # coefficients of the interpolants
 
@@ -124,11 +124,9 @@ class FEMDiscretization(Discretization):
             weights = nodes.T.T @ ones.vec.FV().NumPy() if order == 1 else None
             del ones
         else:
-            S, weights = p1_stiffness(*tables), p1_lumped_weights(*tables)
+            S, weights = p1_matrices(*tables)
         del tables
         Sii = submatrix(S, self.interior, self.interior)
-        Sib = submatrix(S, self.interior, self.boundary)
-        del S
         # D: lumped weights (psi_a, 1) for p = 1, identity (dual basis) for p >= 2
         self.D = weights[self.interior] if order == 1 else np.ones(ni)
 
@@ -139,10 +137,10 @@ class FEMDiscretization(Discretization):
             gb = np.zeros(fes.ndof)
             gb[self.boundary] = coef[gname][self.boundary]
             self.lift.append(gb)
-            F.append(Fn[self.interior] - mu * (Sib @ gb[self.boundary]))
+            F.append(Fn[self.interior] - mu * (S @ gb)[self.interior])  # S_ib g_b: gb is zero inside
         self.nfields = problem.nfields
         K = _block_diag_csr([Sii if mu == 1.0 else mu * Sii for mu in problem.mus])  # 1.0 * s == s exactly
-        del Sii
+        del Sii, S
         if problem.obstacle is None:  # u1 - u2 >= 0
             up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
         else:  # u - psi >= 0
@@ -281,10 +279,17 @@ class FEMDiscretization(Discretization):
 
 
 
-def _on_boundary(nodes, cf, boundary: np.ndarray) -> np.ndarray:
-    """Values of ``cf`` at the ``boundary`` nodes, zero at the other nodes."""
-    out = np.zeros(nodes.ndof)
-    out[boundary] = nodes.evaluate(cf, boundary)
+def _p1_data(problem, nodes, boundary: np.ndarray) -> dict:
+    """The data at the nodes as the P1 set-up evaluates them: Dirichlet data at the ``boundary`` nodes only
+    (zero elsewhere; the only nodes where they are used and checked), the others compiled (the same values,
+    evaluated faster)."""
+    out = {}
+    for name, cf in problem.data().items():
+        if name in problem.dirichlet_names:
+            out[name] = np.zeros(nodes.ndof)
+            out[name][boundary] = nodes.evaluate(cf, boundary)
+        else:
+            out[name] = nodes.evaluate(cf.Compile())
     return out
 
 
@@ -302,7 +307,17 @@ def _parent_p1_values(previous, fine, values):
 
 def _parent_pairs(previous, fine):
     """(a, b): the coarse parents of ``fine``'s interior nodes in the table ``fine.mesh.ngc_parents``, or None
-    (no table, or it does not describe these two P1 meshes: checked on the coordinates, bitwise)."""
+    (no table, or it does not describe these two P1 meshes: checked on the coordinates, bitwise).  Kept on
+    ``fine`` for ``previous`` (the multigrid hierarchy and the prolongation of a level both ask)."""
+    cached = getattr(fine, "_parent_cache", None)
+    if cached is not None and cached[0]() is previous:
+        return cached[1]
+    pairs = _check_parent_pairs(previous, fine)
+    fine._parent_cache = (weakref.ref(previous), pairs)
+    return pairs
+
+
+def _check_parent_pairs(previous, fine):
     par = getattr(fine.mesh, "ngc_parents", None)
     if par is None or fine.fes.ndof != fine.mesh.nv or previous.fes.ndof != previous.mesh.nv \
             or par.shape != (fine.mesh.nv, 2) or par.max(initial=0) >= previous.mesh.nv:

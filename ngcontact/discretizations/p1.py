@@ -3,9 +3,9 @@ computed with numpy from the vertex and triangle arrays of the netgen mesh.
 
 * :func:`p1_tables`: vertex coordinates (those of the netgen mesh) and the triangles' vertex numbers,
   or None where the fast path does not apply (curved elements, non-vertex dofs, other element types);
-* :func:`p1_stiffness`: the stiffness matrix (grad psi_a, grad psi_b) of the hat functions, element by element
-  K_ij = e_i . e_j / (4 |T|), e_i the edge of T opposite to its vertex i;
-* :func:`p1_lumped_weights`: the integrals (psi_a, 1) = sum over the triangles at a of |T| / 3;
+* :func:`p1_matrices`: the stiffness matrix (grad psi_a, grad psi_b) of the hat functions, element by element
+  K_ij = e_i . e_j / (4 |T|), e_i the edge of T opposite to its vertex i, and the integrals (psi_a, 1) = sum
+  over the triangles at a of |T| / 3;
 * :func:`dirichlet_vertices`: the vertices of the boundary elements of a boundary region (the P1 dofs that
   ``H1(mesh, order=1, dirichlet=...)`` fixes), checked against the space's count of free dofs.
 
@@ -23,7 +23,7 @@ import scipy.sparse as sp
 
 from ..algebra.sparse import assemble_csr
 
-__all__ = ["p1_tables", "p1_stiffness", "p1_lumped_weights", "dirichlet_vertices"]
+__all__ = ["p1_tables", "p1_matrices", "dirichlet_vertices"]
 
 
 def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
@@ -44,33 +44,28 @@ def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     return X, nodes[:, :3].astype(np.int64) - 1
 
 
-def _edges(X: np.ndarray, T: np.ndarray):
-    """x and y components (ne, 3) of the edges e_i = P_{i+2} - P_{i+1} opposite to the vertices, and 2 |T|."""
-    x, y = X[:, 0][T], X[:, 1][T]
-    ex = np.stack([x[:, 2] - x[:, 1], x[:, 0] - x[:, 2], x[:, 1] - x[:, 0]], axis=1)
-    ey = np.stack([y[:, 2] - y[:, 1], y[:, 0] - y[:, 2], y[:, 1] - y[:, 0]], axis=1)
-    return ex, ey, np.abs(ex[:, 1] * ey[:, 2] - ey[:, 1] * ex[:, 2])
+def p1_matrices(X: np.ndarray, T: np.ndarray):
+    """(S, w): the P1 stiffness matrix (nv x nv CSR, sorted indices, every vertex pair of a triangle stored)
+    and the lumped weights w_a = (psi_a, 1), the sum of |T| / 3 over the triangles at a; one pass over the
+    triangles in chunks (:func:`~ngcontact.algebra.sparse.assemble_csr`)."""
+    w = np.zeros(len(X))
 
-
-def p1_stiffness(X: np.ndarray, T: np.ndarray) -> sp.csr_matrix:
-    """The P1 stiffness matrix (nv x nv CSR, sorted indices, every vertex pair of a triangle stored)."""
     def local(lo, hi):
-        ex, ey, area2 = _edges(X, T[lo:hi])
-        inv = 1.0 / (2.0 * area2)
+        Tc = T[lo:hi]
+        x0, x1, x2 = (X[Tc[:, k], 0] for k in range(3))
+        y0, y1, y2 = (X[Tc[:, k], 1] for k in range(3))
+        ex, ey = (x2 - x1, x0 - x2, x1 - x0), (y2 - y1, y0 - y2, y1 - y0)  # e_i opposite to vertex i
+        area2 = np.abs(ex[1] * ey[2] - ey[1] * ex[2])  # 2 |T|
+        w[:] += np.bincount(Tc.ravel(), weights=np.repeat(area2 / 6.0, 3), minlength=len(X))
+        inv = 0.5 / area2
         loc = np.empty((hi - lo, 3, 3))
         for i in range(3):
             for j in range(i, 3):
-                loc[:, i, j] = (ex[:, i] * ex[:, j] + ey[:, i] * ey[:, j]) * inv
-                loc[:, j, i] = loc[:, i, j]
+                loc[:, i, j] = v = (ex[i] * ex[j] + ey[i] * ey[j]) * inv
+                loc[:, j, i] = v
         return loc
 
-    return assemble_csr(T, local, len(X))
-
-
-def p1_lumped_weights(X: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(psi_a, 1) for every vertex a: the sum of |T| / 3 over its triangles."""
-    area2 = _edges(X, T)[2]
-    return np.bincount(T.ravel(), weights=np.repeat(area2 / 6.0, 3), minlength=len(X))
+    return assemble_csr(T, local, len(X), chunk=1 << 19), w
 
 
 def dirichlet_vertices(mesh, region: str, fes=None) -> Optional[np.ndarray]:
