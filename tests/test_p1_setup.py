@@ -137,8 +137,8 @@ def test_assemble_csr_chunks_agree():
     rng = np.random.default_rng(3)
     E = rng.integers(0, 40, size=(101, 3))
     loc = rng.random((101, 3, 3))
-    one = assemble_csr(E, lambda lo, hi: loc[lo:hi], 40, chunk=1000)
-    many = assemble_csr(E, lambda lo, hi: loc[lo:hi], 40, chunk=7)
+    one = assemble_csr(E, lambda lo, hi: loc[lo:hi].transpose(1, 2, 0), 40, chunk=1000)
+    many = assemble_csr(E, lambda lo, hi: loc[lo:hi].transpose(1, 2, 0), 40, chunk=7)
     dense = np.zeros((40, 40))
     for e in range(101):
         np.add.at(dense, (E[e][:, None], E[e][None, :]), loc[e])

@@ -51,7 +51,8 @@ def submatrix(A: sp.spmatrix, rows, cols) -> sp.csr_matrix:
 
 def assemble_csr(elements: np.ndarray, local, n: int, chunk: int = 1 << 17) -> sp.csr_matrix:
     """Sum of element matrices: ``elements`` (ne, k) the global numbers of each element's k unknowns,
-    ``local(lo, hi)`` the (hi - lo, k, k) element matrices of elements lo..hi-1; an (n, n) CSR matrix with
+    ``local(lo, hi)`` the element matrices of elements lo..hi-1 as a (k, k, hi - lo) array (entry (i, j) of all
+    elements contiguous: filled without strided writes); an (n, n) CSR matrix with
     sorted, summed indices (explicit zeros kept: the pattern is every pair of unknowns sharing an element).
 
     Each chunk of elements is summed on its own first (COO -> CSR), and the chunks' summed triplets once
@@ -62,8 +63,10 @@ def assemble_csr(elements: np.ndarray, local, n: int, chunk: int = 1 << 17) -> s
     for lo in range(0, ne, chunk):
         hi = min(ne, lo + chunk)
         E = elements[lo:hi].astype(itype, copy=False)
+        Et = np.ascontiguousarray(E.T)  # (k, m): entry (i, j, e) of the element matrices is (E[e, i], E[e, j])
         part = sp.coo_matrix((np.asarray(local(lo, hi), dtype=float).ravel(),
-                              (np.repeat(E, k, axis=1).ravel(), np.tile(E, (1, k)).ravel())), shape=(n, n)).tocsr()
+                              (np.repeat(Et[:, None, :], k, axis=1).ravel(),
+                               np.broadcast_to(Et[None, :, :], (k, k, hi - lo)).ravel())), shape=(n, n)).tocsr()
         part = part.tocoo()
         rows.append(part.row.astype(itype, copy=False))
         cols.append(part.col.astype(itype, copy=False))

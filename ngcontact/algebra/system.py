@@ -40,6 +40,7 @@ import scipy.sparse as sp
 
 from .certificate import certificate
 from .linalg import SPDSolver
+from .sparse import submatrix
 
 __all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS",
            "power_of_two"]
@@ -391,7 +392,7 @@ class LinearizedStep:
             if self.slave_is_lo.any():  # slaves follow masters: Z merges columns
                 self._A = (self.Z.T @ self._Kaug @ self.Z).tocsr()
             else:  # Z selects the kept unknowns
-                self._A = self._Kaug.tocsr()[self.keep][:, self.keep].tocsr()
+                self._A = submatrix(self._Kaug, self.keep, self.keep)  # one pass, no K[keep] copy
         return self._A
 
     @property

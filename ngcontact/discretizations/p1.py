@@ -58,11 +58,13 @@ def p1_matrices(X: np.ndarray, T: np.ndarray):
         area2 = np.abs(ex[1] * ey[2] - ey[1] * ex[2])  # 2 |T|
         w[:] += np.bincount(Tc.ravel(), weights=np.repeat(area2 / 6.0, 3), minlength=len(X))
         inv = 0.5 / area2
-        loc = np.empty((hi - lo, 3, 3))
+        loc = np.empty((3, 3, hi - lo))
         for i in range(3):
             for j in range(i, 3):
-                loc[:, i, j] = v = (ex[i] * ex[j] + ey[i] * ey[j]) * inv
-                loc[:, j, i] = v
+                np.multiply(ex[i], ex[j], out=loc[i, j])
+                loc[i, j] += ey[i] * ey[j]
+                loc[i, j] *= inv
+                loc[j, i] = loc[i, j]
         return loc
 
     return assemble_csr(T, local, len(X), chunk=1 << 19), w
