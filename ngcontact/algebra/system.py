@@ -395,6 +395,11 @@ class LinearizedStep:
                 self._A = submatrix(self._Kaug, self.keep, self.keep)  # one pass, no K[keep] copy
         return self._A
 
+    def share_matrix(self, A: sp.csr_matrix) -> None:
+        """Use ``A`` as :attr:`A` (not formed again): the caller holds the reduced matrix of a step with the same
+        row classes (``eq``, ``mixed``, ``w``) of the same system, which is this one, entry for entry."""
+        self._A = A
+
     @property
     def size(self) -> int:
         return int(self.keep.sum())

@@ -186,6 +186,7 @@ class FEMDiscretization(Discretization):
             nodal = previous.nodal_fields(x, y)
             stacked = np.stack([nodal[n] for n in names + ["lam"]])
             vals = _parent_p1_values(previous, self, stacked)
+            self.__dict__.pop("_parent_cache", None)  # the hierarchy has asked already: not kept with the level
             if vals is None:
                 vals = _nested_p1_values(previous, pts, stacked)
             if vals is not None:

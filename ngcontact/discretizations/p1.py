@@ -27,9 +27,9 @@ __all__ = ["p1_tables", "p1_matrices", "dirichlet_vertices"]
 
 
 def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
-    """(X, T): vertex coordinates (nv, 2, the netgen vertices) and triangles (ne, 3, int64, NGSolve's local vertex order) of a
-    straight-sided triangular ``mesh``, or None (a curved mesh, an element that is not a triangle, or a space
-    ``fes`` whose dofs are not the vertices)."""
+    """(X, T): vertex coordinates (nv, 2, the netgen vertices) and triangles (ne, 3, NGSolve's local vertex
+    order; int32 below 2^31 vertices) of a straight-sided triangular ``mesh``, or None (a curved mesh, an
+    element that is not a triangle, or a space ``fes`` whose dofs are not the vertices)."""
     ng = mesh.ngmesh
     if ng.dim != 2 or ng.GetCurveOrder() > 1:
         return None
@@ -41,7 +41,8 @@ def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     X = np.array(ng.Coordinates()[:, :2], dtype=float)
     if len(X) != mesh.nv:
         return None
-    return X, nodes[:, :3].astype(np.int64) - 1
+    itype = np.int32 if len(X) < np.iinfo(np.int32).max else np.int64
+    return X, nodes[:, :3].astype(itype) - 1
 
 
 def p1_matrices(X: np.ndarray, T: np.ndarray):
