@@ -172,8 +172,13 @@ def _grid(n: int, box):
 
 
 def _to_ngmesh(X, T, S, tag) -> ngm.Mesh:
-    """Netgen 2D mesh with region "domain" and boundary regions bottom/right/top/left."""
+    """Netgen 2D mesh with region "domain" and boundary regions bottom/right/top/left.
+
+    Its topology has no face table: in 2D NGSolve numbers the element-interior dofs by element and reads the
+    edges and vertices only (tests/test_setup_memory.py compares spaces, forms and refinement with and without
+    it); the table (one face per triangle) is about half the time of ``ngsolve.Mesh`` at 1e6 triangles."""
     mesh = ngm.Mesh(dim=2)
+    mesh.EnableTable("faces", False)
     mesh.AddPoints(np.ascontiguousarray(X, dtype=np.float64))
     dom = mesh.AddRegion("domain", dim=2)
     mesh.AddElements(dim=2, index=dom, data=np.ascontiguousarray(T, dtype=np.int32), base=0)

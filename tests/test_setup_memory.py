@@ -91,3 +91,42 @@ def test_structured_meshes_do_not_keep_their_arrays():
     gen = CrissCrossSquare(n0=2)._levels(0, 2)
     next(gen)
     assert gen.gi_frame.f_locals["arrays"] is not None  # red refinement needs the arrays of the level before
+
+
+def _forms(mesh):
+    """ndof and the entries of a mass and a stiffness-like form of the spaces the package uses."""
+    from ngsolve import H1, L2, BilinearForm, FacetFESpace, HDiv, div, dx, grad, specialcf
+
+    out = []
+    for fes in [H1(mesh, order=p, dirichlet=".*") for p in (1, 2, 3, 4)] + [L2(mesh, order=2)]:
+        u, v = fes.TnT()
+        a = BilinearForm(grad(u) * grad(v) * dx + u * v * dx).Assemble()
+        out.append((fes.ndof, sum(fes.FreeDofs()), np.array(a.mat.AsVector())))
+    X = HDiv(mesh, order=2, RT=True, discontinuous=True) * L2(mesh, order=2) * FacetFESpace(mesh, order=2)
+    (s, r, lam), (t, q, mu) = X.TnT()
+    n = specialcf.normal(2)
+    a = BilinearForm(X)
+    a += (s * t + div(s) * q + div(t) * r) * dx + (s * n * mu + t * n * lam) * dx(element_boundary=True)
+    a += lam * mu * dx(element_boundary=True)
+    out.append((X.ndof, sum(X.FreeDofs()), np.array(a.Assemble().mat.AsVector())))
+    return out
+
+
+def test_box_meshes_without_a_face_table_give_the_same_spaces_forms_and_refinements():
+    import ngsolve
+    from ngcontact import CrissCrossSquare
+    from ngcontact.domains import _to_ngmesh
+
+    arrays = CrissCrossSquare(n0=2)._arrays(1)
+    plain, with_faces = _to_ngmesh(*arrays), _to_ngmesh(*arrays)
+    with_faces.EnableTable("faces", True)
+    m0, m1 = ngsolve.Mesh(plain), ngsolve.Mesh(with_faces)
+    assert m0.nface == 0 and m1.nface == m1.ne  # the table is really off
+    for mesh in (m0, m1):
+        mesh.SetRefinementFlags([k % 3 == 0 for k in range(mesh.ne)])
+        mesh.Refine()
+    assert (m0.nv, m0.ne, m0.nedge) == (m1.nv, m1.ne, m1.nedge)
+    assert np.array_equal(np.asarray(m0.ngmesh.Coordinates()), np.asarray(m1.ngmesh.Coordinates()))
+    for (n0, f0, a0), (n1, f1, a1) in zip(_forms(m0), _forms(m1)):
+        assert (n0, f0) == (n1, f1) and np.array_equal(a0, a1)
+
