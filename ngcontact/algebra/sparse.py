@@ -43,8 +43,10 @@ def submatrix(A: sp.spmatrix, rows, cols) -> sp.csr_matrix:
     keep = np.repeat(row_in, counts)
     cj = new_col[A.indices]
     keep &= cj >= 0
-    kc = np.concatenate([[0], np.cumsum(keep, dtype=np.int64)])
-    per_row = kc[A.indptr[1:]] - kc[A.indptr[:-1]]
+    per_row = np.zeros(nr, dtype=np.int64)  # kept entries of every row (segment sums over the nonempty rows)
+    full = counts > 0
+    if full.any():
+        per_row[full] = np.add.reduceat(keep[:A.indptr[-1]], A.indptr[:-1][full], dtype=np.int64)
     indptr = np.concatenate([[0], np.cumsum(per_row[r])]).astype(itype)
     return sp.csr_matrix((A.data[keep], cj[keep], indptr), shape=(len(r), len(c)))
 
