@@ -31,7 +31,8 @@ Columns (one row per finest level N of a nested run from the coarsest mesh):
   (ex9 cases: the whole nested run and the linear solve are each timed twice in the same process,
    both take the minimum -- the shared machines vary by 10-20 % from run to run)
   newton_its   Newton iterations per level, coarse to fine
-  peak_rss_mb  resource.getrusage peak resident memory of the case's process
+  peak_rss_mb  resource.getrusage peak resident memory of the case's process (the baseline solves of the finest
+               level run on its algebraic system; its mesh and space are released before them)
   peak_rss_run_mb  the same right after the nested runs, before the baseline solves of the t_linear columns
 """
 from __future__ import annotations
@@ -46,6 +47,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 PETSC_S = {256: 0.45, 512: 1.0, 1024: 7.1}  # REFERENCE.md, vinewtonrsls + GAMG, this machine class
 PETSC_ERR = {256: 9.340e-5, 512: 1.918e-5, 1024: 6.59e-6}
@@ -109,6 +111,11 @@ def run_case(case: str, quick: bool) -> list:
         res = run_scene(scene, opts, progress=lambda m: print(f"[{case}] {m}", flush=True))
         runs.append(res.rows)
     peak_run = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    # the baselines of the finest level need its algebra only: its mesh and space are let go first
+    fin_disc = res.discretization
+    finest = SimpleNamespace(system=fin_disc.system, n_interior=fin_disc.n_interior,
+                             mg_prolongations=tuple(getattr(fin_disc, "mg_prolongations", ())))
+    res = fin_disc = None
     rows = []
 
     def solve_time(rows_upto):
@@ -122,14 +129,14 @@ def run_case(case: str, quick: bool) -> list:
         return rows_upto[-1]["time_cum_s"] - sum(q["time_post_s"] for q in rows_upto)
 
     for L in report:
-        r = res.rows[: L + 1]
+        r = runs[-1][: L + 1]
         fin = r[-1]
         t_total = min(run[L]["time_cum_s"] for run in runs)
         t_run = min(run_time(run[: L + 1]) for run in runs)
         t_solve = min(solve_time(run[: L + 1]) for run in runs)
         t_newton = min(newton_time(run[: L + 1]) for run in runs)
         # one unconstrained solve on this level's matrix (rebuild the level: the run keeps only the last)
-        disc = res.discretization if L == levels - 1 else _level_disc(scene, L)
+        disc = finest if L == levels - 1 else _level_disc(scene, L)
         if not getattr(disc, "mg_prolongations", ()):
             disc = _level_disc(scene, L)
         t_lins = []
