@@ -172,8 +172,13 @@ def _grid(n: int, box):
 
 
 def _to_ngmesh(X, T, S, tag) -> ngm.Mesh:
-    """Netgen 2D mesh with region "domain" and boundary regions bottom/right/top/left."""
+    """Netgen 2D mesh with region "domain" and boundary regions bottom/right/top/left.
+
+    Its topology has no face table: in 2D NGSolve numbers the element-interior dofs by element and reads the
+    edges and vertices only (tests/test_setup_memory.py compares spaces, forms and refinement with and without
+    it); the table (one face per triangle) is about half the time of ``ngsolve.Mesh`` at 1e6 triangles."""
     mesh = ngm.Mesh(dim=2)
+    mesh.EnableTable("faces", False)
     mesh.AddPoints(np.ascontiguousarray(X, dtype=np.float64))
     dom = mesh.AddRegion("domain", dim=2)
     mesh.AddElements(dim=2, index=dom, data=np.ascontiguousarray(T, dtype=np.int32), base=0)
@@ -213,16 +218,25 @@ class _BoxDomain(Domain):
         """Arrays of ``level`` given those of ``level - 1`` (``parents``: append the parent table)."""
         return self._arrays(level)
 
+    #: ``_next`` refines the arrays of the level before (False: builds the level afresh, and the arrays of a
+    #: level are not kept while it is in use)
+    _next_refines = True
+
     def _levels(self, start, stop):
         arrays, parents = self._arrays(start), []
         for level in range(start, stop):
             if level > start:
                 arrays = self._next(arrays, level, parents)
-            yield arrays, (parents.pop() if parents else None)
+            box = [arrays, (parents.pop() if parents else None)]
+            if not self._next_refines:
+                arrays = None
+            yield box  # the consumer empties the box: the arrays go once the mesh is built
 
     def _ngmeshes(self, start, stop):
-        for arrays, _ in self._levels(start, stop):
-            yield _to_ngmesh(*arrays)
+        for box in self._levels(start, stop):
+            ngmesh = _to_ngmesh(*box.pop(0))
+            box.clear()
+            yield ngmesh
 
     def meshes(self, levels: int) -> Iterator[ngsolve.Mesh]:
         """Yield T_0, ..., T_{levels-1} (independent objects, see :meth:`Domain.meshes`).
@@ -232,9 +246,9 @@ class _BoxDomain(Domain):
         Nested P1 prolongation reads it instead of matching coordinates
         (``discretizations.fem._parent_p1_values``; it still checks the coordinates).
         """
-        for arrays, parents in self._levels(0, _check_level(levels, "levels")):
-            mesh = ngsolve.Mesh(_to_ngmesh(*arrays))
-            mesh.ngc_parents = parents
+        for box in self._levels(0, _check_level(levels, "levels")):
+            mesh = ngsolve.Mesh(_to_ngmesh(*box.pop(0)))
+            mesh.ngc_parents = box.pop()
             yield mesh
 
     def h(self, level: int = 0) -> float:
@@ -304,6 +318,7 @@ class StructuredSquare(_BoxDomain):
     """
 
     _kind = "structured"
+    _next_refines = False
     n0: int = 16
     xmin: float = 0.0
     xmax: float = 1.0

@@ -73,6 +73,7 @@ class SPDSolver:
             coo = sp.triu(A, format="coo")  # the factorization reads one triangle
             coo = (coo + sp.triu(coo, 1, format="coo").T).tocoo()
             self._mat = ngsolve_coo(coo.row, coo.col, coo.data, self.n, self.n)
+            del coo  # the triplets go before the factorization (which reads the NGSolve matrix only)
             from ngsolve import TaskManager
 
             with TaskManager():  # threaded factorization

@@ -40,6 +40,7 @@ import scipy.sparse as sp
 
 from .certificate import certificate
 from .linalg import SPDSolver
+from .sparse import submatrix
 
 __all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS",
            "power_of_two"]
@@ -391,8 +392,13 @@ class LinearizedStep:
             if self.slave_is_lo.any():  # slaves follow masters: Z merges columns
                 self._A = (self.Z.T @ self._Kaug @ self.Z).tocsr()
             else:  # Z selects the kept unknowns
-                self._A = self._Kaug.tocsr()[self.keep][:, self.keep].tocsr()
+                self._A = submatrix(self._Kaug, self.keep, self.keep)  # one pass, no K[keep] copy
         return self._A
+
+    def share_matrix(self, A: sp.csr_matrix) -> None:
+        """Use ``A`` as :attr:`A` (not formed again): the caller holds the reduced matrix of a step with the same
+        row classes (``eq``, ``mixed``, ``w``) of the same system, which is this one, entry for entry."""
+        self._A = A
 
     @property
     def size(self) -> int:

@@ -22,6 +22,7 @@ field and g = X - psi.
 from __future__ import annotations
 
 import time
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -29,6 +30,7 @@ from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integr
                      dx, grad)
 
 from ..algebra.multigrid import field_prolongation, p1_prolongation
+from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
 from ..domains import DIRICHLET
 from ..problems.base import check_data_on_points
@@ -36,6 +38,7 @@ from .base import Discretization, assemble_load, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
 from .lagrange import LagrangeNodes, meshpoints
 from .nodesets import constraint_node_set
+from .p1 import dirichlet_vertices, p1_matrices, p1_tables
 
 __all__ = ["FEMDiscretization"]
 
@@ -91,26 +94,41 @@ class FEMDiscretization(Discretization):
         if getattr(problem.domain, "curved", False) and order > 1:
             mesh.Curve(order)
         self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
-        self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" else LagrangeNodes.build(fes, node_set)
-        free = np.array(list(fes.FreeDofs()), dtype=bool)
+        # P1 on straight triangles: numpy set-up from the vertex arrays (discretizations.p1), same matrices
+        tables = p1_tables(mesh, fes) if constraints != "bernstein" else None
+        bnd = dirichlet_vertices(mesh, DIRICHLET, fes) if tables is not None else None
+        if bnd is None:
+            tables = None
+            self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" \
+                else LagrangeNodes.build(fes, node_set)
+            free = np.array(list(fes.FreeDofs()), dtype=bool)
+        else:
+            self.nodes = nodes = LagrangeNodes.from_p1_tables(fes, *tables)
+            free = ~bnd
         self.interior = np.flatnonzero(free)
         self.boundary = np.flatnonzero(~free)
         ni = len(self.interior)
 
         # data at the nodes, checked once
-        data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()}
+        data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()} if tables is None \
+            else _p1_data(problem, nodes, self.boundary)
         check_data_on_points(problem, data, ~free, nodes.coords)
         coef = {name: nodes.from_values(v) for name, v in data.items()}  # coefficients of the interpolants
 
         u, v = fes.TnT()
-        with TaskManager():
-            S = BilinearForm(grad(u) * grad(v) * dx).Assemble()
-            ones = LinearForm(v * dx).Assemble()
-        self.S = nodes.transform(scipy_csr(S))
-        Sii = self.S[self.interior][:, self.interior]
-        Sib = self.S[self.interior][:, self.boundary]
+        if tables is None:
+            with TaskManager():
+                S = BilinearForm(grad(u) * grad(v) * dx).Assemble()
+                ones = LinearForm(v * dx).Assemble()
+            S = nodes.transform(scipy_csr(S))
+            weights = nodes.T.T @ ones.vec.FV().NumPy() if order == 1 else None
+            del ones
+        else:
+            S, weights = p1_matrices(*tables)
+        del tables
+        Sii = submatrix(S, self.interior, self.interior)
         # D: lumped weights (psi_a, 1) for p = 1, identity (dual basis) for p >= 2
-        self.D = (nodes.T.T @ ones.vec.FV().NumPy())[self.interior] if order == 1 else np.ones(ni)
+        self.D = weights[self.interior] if order == 1 else np.ones(ni)
 
         self.lift = []  # nodal Dirichlet values of each field (zero inside)
         F = []
@@ -119,9 +137,10 @@ class FEMDiscretization(Discretization):
             gb = np.zeros(fes.ndof)
             gb[self.boundary] = coef[gname][self.boundary]
             self.lift.append(gb)
-            F.append(Fn[self.interior] - mu * (Sib @ gb[self.boundary]))
+            F.append(Fn[self.interior] - mu * (S @ gb)[self.interior])  # S_ib g_b: gb is zero inside
         self.nfields = problem.nfields
-        K = _block_diag_csr([mu * Sii for mu in problem.mus])
+        K = _block_diag_csr([Sii if mu == 1.0 else mu * Sii for mu in problem.mus])  # 1.0 * s == s exactly
+        del Sii, S
         if problem.obstacle is None:  # u1 - u2 >= 0
             up, lo, b = np.arange(ni), ni + np.arange(ni), np.zeros(ni)
         else:  # u - psi >= 0
@@ -167,6 +186,7 @@ class FEMDiscretization(Discretization):
             nodal = previous.nodal_fields(x, y)
             stacked = np.stack([nodal[n] for n in names + ["lam"]])
             vals = _parent_p1_values(previous, self, stacked)
+            self.__dict__.pop("_parent_cache", None)  # the hierarchy has asked already: not kept with the level
             if vals is None:
                 vals = _nested_p1_values(previous, pts, stacked)
             if vals is not None:
@@ -260,6 +280,20 @@ class FEMDiscretization(Discretization):
 
 
 
+def _p1_data(problem, nodes, boundary: np.ndarray) -> dict:
+    """The data at the nodes as the P1 set-up evaluates them: Dirichlet data at the ``boundary`` nodes only
+    (zero elsewhere; the only nodes where they are used and checked), the others compiled (the same values,
+    evaluated faster)."""
+    out = {}
+    for name, cf in problem.data().items():
+        if name in problem.dirichlet_names:
+            out[name] = np.zeros(nodes.ndof)
+            out[name][boundary] = nodes.evaluate(cf, boundary)
+        else:
+            out[name] = nodes.evaluate(cf.Compile())
+    return out
+
+
 def _parent_p1_values(previous, fine, values):
     """P1 interpolant of nodal ``values`` (k x coarse nodes) at ``fine``'s interior nodes from the
     parent table ``fine.mesh.ngc_parents`` of structured domains (``domains._BoxDomain.meshes``),
@@ -274,7 +308,17 @@ def _parent_p1_values(previous, fine, values):
 
 def _parent_pairs(previous, fine):
     """(a, b): the coarse parents of ``fine``'s interior nodes in the table ``fine.mesh.ngc_parents``, or None
-    (no table, or it does not describe these two P1 meshes: checked on the coordinates, bitwise)."""
+    (no table, or it does not describe these two P1 meshes: checked on the coordinates, bitwise).  Kept on
+    ``fine`` for ``previous`` (the multigrid hierarchy and the prolongation of a level both ask)."""
+    cached = getattr(fine, "_parent_cache", None)
+    if cached is not None and cached[0]() is previous:
+        return cached[1]
+    pairs = _check_parent_pairs(previous, fine)
+    fine._parent_cache = (weakref.ref(previous), pairs)
+    return pairs
+
+
+def _check_parent_pairs(previous, fine):
     par = getattr(fine.mesh, "ngc_parents", None)
     if par is None or fine.fes.ndof != fine.mesh.nv or previous.fes.ndof != previous.mesh.nv \
             or par.shape != (fine.mesh.nv, 2) or par.max(initial=0) >= previous.mesh.nv:

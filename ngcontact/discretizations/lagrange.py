@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from ngsolve import VOL, ElementId, IntegrationRule, x, y
+from ngsolve import BND, VOL, ElementId, IntegrationRule, x, y
 
 from .nodesets import lattice, reference_nodes
 
@@ -67,6 +67,27 @@ class LagrangeNodes:
     elem_dofs: np.ndarray = None
     elem_nodes: np.ndarray = None
     rep: tuple = None
+    _mesh: object = None  # with _points None: the MeshPoints are made on each evaluation (P1: not kept)
+    _ref: np.ndarray = None  # reference coordinates of the lattice points (node j_of of element e_of)
+
+    @classmethod
+    def from_p1_tables(cls, fes, X: np.ndarray, T: np.ndarray) -> "LagrangeNodes":
+        """The nodes of ``fes = H1(mesh, order=1)`` from the vertex arrays (X, T) of
+        :func:`~ngcontact.discretizations.p1.p1_tables`: the same nodes, numbering, element tables and
+        MeshPoints as :meth:`build`, with the netgen vertices as coordinates (:meth:`build` maps the reference
+        vertices, which can round differently by 1e-17), and without keeping the MeshPoints (they are made
+        on each :meth:`evaluate`)."""
+        ndof = fes.ndof
+        lat = lattice(1)
+        perm = [int(np.flatnonzero(b)[0]) for b in lat]  # local vertex of lattice point j
+        node = T[:, ::-1] if perm == [2, 1, 0] else T[:, perm]  # a view for NGSolve's lattice order
+        first = np.full(ndof, -1, dtype=np.int64)
+        first[node.ravel()] = np.arange(node.size)
+        if (first < 0).any():
+            raise ValueError(f"found {int((first >= 0).sum())} Lagrange nodes for {ndof} H1 dofs")
+        V = sp.identity(ndof, format="csr")
+        return cls(V=V, T=V, coords=X, level=np.zeros(ndof, dtype=np.int8), elem_dofs=T, elem_nodes=node,
+                   rep=tuple(np.divmod(first, 3)), _mesh=fes.mesh, _ref=reference_nodes(1, "positive"))
 
     @classmethod
     def build(cls, fes, node_set: str = "positive") -> "LagrangeNodes":
@@ -152,9 +173,14 @@ class LagrangeNodes:
     def ndof(self) -> int:
         return self.V.shape[0]
 
-    def evaluate(self, cf) -> np.ndarray:
-        """Values of a scalar CoefficientFunction at every node (vectorized)."""
-        return np.asarray(cf(self._points)).reshape(-1)
+    def evaluate(self, cf, where: np.ndarray = None) -> np.ndarray:
+        """Values of a scalar CoefficientFunction at every node (vectorized), or at the nodes ``where``."""
+        if self._points is not None:
+            pts = self._points if where is None else self._points[where]
+        else:
+            e_of, j_of = self.rep if where is None else (self.rep[0][where], self.rep[1][where])
+            pts = meshpoints(self._mesh, e_of, self._ref[j_of, 0], self._ref[j_of, 1])
+        return np.asarray(cf(pts)).reshape(-1)
 
     def from_values(self, values: np.ndarray) -> np.ndarray:
         """Coefficients in this basis of the interpolant with the given values at the nodes (the values)."""
@@ -176,11 +202,19 @@ def meshpoints(mesh, elements: np.ndarray, xi: np.ndarray, eta: np.ndarray) -> n
 
     The mesh pointer and VOL tag are copied from a one-point ``MapToAllElements`` (cheap; a point
     search ``mesh(x, y)`` would first build a search tree)."""
-    proto = np.asarray(mesh.MapToAllElements(IntegrationRule([(1 / 3, 1 / 3, 0.0)], [0.0]), VOL))[:1]
+    proto = _mesh_point_proto(mesh)
     mp = np.zeros(len(elements), dtype=proto.dtype)
-    mp["meshptr"], mp["VorB"], mp["nr"], mp["facetnr"] = proto["meshptr"][0], proto["VorB"][0], elements, -1
+    mp["meshptr"], mp["VorB"], mp["nr"], mp["facetnr"] = proto["meshptr"][0], int(VOL), elements, -1
     mp["x"], mp["y"] = xi, eta
     return mp
+
+
+def _mesh_point_proto(mesh) -> np.ndarray:
+    """One MeshPoint of ``mesh`` (its dtype and mesh pointer): mapped on the boundary elements when there are
+    any (a few, where mapping one point on every volume element costs a pass over the whole mesh)."""
+    if mesh.GetNE(BND):
+        return np.asarray(mesh.MapToAllElements(IntegrationRule([(0.5, 0.0, 0.0)], [0.0]), BND))[:1]
+    return np.asarray(mesh.MapToAllElements(IntegrationRule([(1 / 3, 1 / 3, 0.0)], [0.0]), VOL))[:1]
 
 
 def _element_tables(fes, ne: int, ndof_loc: int):

@@ -104,8 +104,12 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     """Discretize ``problem`` on ``mesh``, solve, evaluate errors (and the estimate).
 
     ``previous``: (disc, x, y) of the coarser level, prolongated when ``options.start == 'nested'``;
-    otherwise the start is ``initial_guess`` (the scene's, or None).
+    otherwise the start is ``initial_guess`` (the scene's, or None).  ``previous`` may also be handed over as
+    a one-element list, which is emptied: when the caller keeps no other reference, the coarser level is freed
+    as soon as it has been prolongated (before the Newton solve of this level).
     """
+    if isinstance(previous, list):
+        previous = previous.pop()
     Disc = DISCRETIZATIONS[options.disc]
     kw = {"condense": options.condense} if options.disc == "hho" else {}
     disc = Disc(problem, mesh, order=options.order, solver=options.solver, constraints=options.constraints, **kw)
@@ -114,6 +118,7 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     if options.newton in MULTIGRID_NEWTON or (options.newton in GMRES_NEWTON and options.krylov == "cg"):
         disc.mg_prolongations = multigrid_hierarchy(disc, previous[0] if previous is not None else None)
     x0, y0 = disc.prolongate(*previous) if warm else disc.initial_guess(initial_guess)
+    previous = None
     t1 = time.perf_counter()
     sol = newton_solve(disc, x0, y0, options, callback, warm=warm)
     t2 = time.perf_counter()

@@ -39,7 +39,10 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
         t0 = time.perf_counter()
         mesh = next(meshes)
         t_mesh = time.perf_counter() - t0
-        out = solve_level(problem, mesh, options, previous=previous, initial_guess=scene.initial_guess,
+        # hand the coarser level over (no reference left here): freed once it is prolongated (solve_level)
+        handoff, previous, out = ([previous] if previous is not None else None), None, None
+        result.discretization = result.x = result.y = None
+        out = solve_level(problem, mesh, options, previous=handoff, initial_guess=scene.initial_guess,
                           with_estimate=options.estimate, callback=iteration_callback(result, level, newton_callback))
         total = time.perf_counter() - t0
         t_cum += total

@@ -126,8 +126,11 @@ class _MultigridSession:
         if self.mg is not None:
             changed = sum(int(np.count_nonzero(a != b)) for a, b in zip(rows, self._rows))
             if changed == 0:
+                if isinstance(self.mg, Multigrid):  # the same row classes: the same reduced matrix, not formed again
+                    lin.share_matrix(self.mg.levels[0].A)
                 return self.mg, 0
             if changed <= self.opt.update_fraction * lin.size:
+                self.mg.levels[0].A = None  # the old finest matrix goes before the new one is formed
                 self.mg = self.mg.updated(lin.A, lin.keep)
                 self._rows = tuple(np.array(a, copy=True) for a in rows)
                 return self.mg, 2

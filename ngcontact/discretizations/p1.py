@@ -1,0 +1,83 @@
+"""Vectorized P1 set-up on straight-sided triangular meshes: what the conforming P1 discretization needs,
+computed with numpy from the vertex and triangle arrays of the netgen mesh.
+
+* :func:`p1_tables`: vertex coordinates (those of the netgen mesh) and the triangles' vertex numbers,
+  or None where the fast path does not apply (curved elements, non-vertex dofs, other element types);
+* :func:`p1_matrices`: the stiffness matrix (grad psi_a, grad psi_b) of the hat functions, element by element
+  K_ij = e_i . e_j / (4 |T|), e_i the edge of T opposite to its vertex i, and the integrals (psi_a, 1) = sum
+  over the triangles at a of |T| / 3;
+* :func:`dirichlet_vertices`: the vertices of the boundary elements of a boundary region (the P1 dofs that
+  ``H1(mesh, order=1, dirichlet=...)`` fixes), checked against the space's count of free dofs.
+
+NGSolve's hat functions are the barycentric coordinates and its P1 dofs are the vertex numbers, so these are
+the matrices of ``BilinearForm(grad(u) * grad(v) * dx)`` and ``LinearForm(v * dx)`` up to rounding
+(tests/test_p1_setup.py).  At 1e6 vertices they take a fraction of the time of NGSolve's assembly, and no
+MeshPoints or CoefficientFunction evaluations.
+"""
+from __future__ import annotations
+
+from typing import Optional, Tuple
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..algebra.sparse import assemble_csr
+
+__all__ = ["p1_tables", "p1_matrices", "dirichlet_vertices"]
+
+
+def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """(X, T): vertex coordinates (nv, 2, the netgen vertices) and triangles (ne, 3, NGSolve's local vertex
+    order; int32 below 2^31 vertices) of a straight-sided triangular ``mesh``, or None (a curved mesh, an
+    element that is not a triangle, or a space ``fes`` whose dofs are not the vertices)."""
+    ng = mesh.ngmesh
+    if ng.dim != 2 or ng.GetCurveOrder() > 1:
+        return None
+    if fes is not None and (fes.globalorder != 1 or fes.ndof != mesh.nv):
+        return None
+    nodes = ng.Elements2D().NumPy()["nodes"]
+    if len(nodes) != mesh.ne or (nodes.shape[1] > 3 and np.any(nodes[:, 3])):
+        return None
+    X = np.array(ng.Coordinates()[:, :2], dtype=float)
+    if len(X) != mesh.nv:
+        return None
+    itype = np.int32 if len(X) < np.iinfo(np.int32).max else np.int64
+    return X, nodes[:, :3].astype(itype) - 1
+
+
+def p1_matrices(X: np.ndarray, T: np.ndarray):
+    """(S, w): the P1 stiffness matrix (nv x nv CSR, sorted indices, every vertex pair of a triangle stored)
+    and the lumped weights w_a = (psi_a, 1), the sum of |T| / 3 over the triangles at a; one pass over the
+    triangles in chunks (:func:`~ngcontact.algebra.sparse.assemble_csr`)."""
+    w = np.zeros(len(X))
+
+    def local(lo, hi):
+        Tc = T[lo:hi]
+        x0, x1, x2 = (X[Tc[:, k], 0] for k in range(3))
+        y0, y1, y2 = (X[Tc[:, k], 1] for k in range(3))
+        ex, ey = (x2 - x1, x0 - x2, x1 - x0), (y2 - y1, y0 - y2, y1 - y0)  # e_i opposite to vertex i
+        area2 = np.abs(ex[1] * ey[2] - ey[1] * ex[2])  # 2 |T|
+        w[:] += np.bincount(Tc.ravel(), weights=np.repeat(area2 / 6.0, 3), minlength=len(X))
+        inv = 0.5 / area2
+        loc = np.empty((3, 3, hi - lo))
+        for i in range(3):
+            for j in range(i, 3):
+                np.multiply(ex[i], ex[j], out=loc[i, j])
+                loc[i, j] += ey[i] * ey[j]
+                loc[i, j] *= inv
+                loc[j, i] = loc[i, j]
+        return loc
+
+    return assemble_csr(T, local, len(X), chunk=1 << 19), w
+
+
+def dirichlet_vertices(mesh, region: str, fes=None) -> Optional[np.ndarray]:
+    """Boolean mask of the vertices on the boundary elements of ``mesh.Boundaries(region)``; with ``fes``
+    (a P1 H1 space with ``dirichlet=region``) None unless its number of free dofs is that of the mask."""
+    bnd = np.zeros(mesh.nv, dtype=bool)
+    for el in mesh.Boundaries(region).Elements():
+        for v in el.vertices:
+            bnd[v.nr] = True
+    if fes is not None and fes.FreeDofs().NumSet() != mesh.nv - int(bnd.sum()):
+        return None
+    return bnd

@@ -1,0 +1,155 @@
+"""The vectorized P1 set-up (ngcontact.discretizations.p1, algebra.sparse) against NGSolve's assembly and
+the general path of FEMDiscretization: same matrices to rounding, same nodes, free dofs and data."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from ngsolve import H1, BilinearForm, LinearForm, dx, grad
+
+import ngcontact.discretizations.fem as fem
+from ngcontact import CrissCrossSquare, StructuredSquare
+from ngcontact.algebra.sparse import assemble_csr, submatrix
+from ngcontact.discretizations.base import scipy_csr
+from ngcontact.discretizations.lagrange import LagrangeNodes
+from ngcontact.discretizations.p1 import dirichlet_vertices, p1_matrices, p1_tables
+from ngcontact.domains import DIRICHLET, LShape, UnitDisk
+from ngcontact.scenes import load_scene
+
+
+def _meshes():
+    disk = UnitDisk(maxh=0.3, interface_radius=0.5).mesh(0)
+    lshape = LShape(maxh=0.5).mesh(0)
+    lshape.SetRefinementFlags([i % 3 == 0 for i in range(lshape.ne)])
+    lshape.Refine()  # bisection: hanging-free, unstructured numbering
+    return {"structured": StructuredSquare(n0=6, xmin=-2, xmax=2).mesh(1),
+            "criss-cross": CrissCrossSquare(n0=3).mesh(1), "disk-interface": disk, "lshape-bisected": lshape}
+
+
+MESHES = _meshes()
+
+
+@pytest.mark.parametrize("name", sorted(MESHES))
+def test_p1_matrices_are_ngsolves(name):
+    mesh = MESHES[name]
+    fes = H1(mesh, order=1, dirichlet=DIRICHLET)
+    tables = p1_tables(mesh, fes)
+    assert tables is not None
+    u, v = fes.TnT()
+    S = scipy_csr(BilinearForm(grad(u) * grad(v) * dx).Assemble())
+    K, w = p1_matrices(*tables)
+    assert K.shape == S.shape and K.nnz == S.nnz  # the same pattern (every vertex pair of a triangle)
+    assert abs(K - S).max() <= 1e-13 * abs(S).max()
+    ones = LinearForm(v * dx).Assemble().vec.FV().NumPy()
+    assert np.abs(w - ones).max() <= 1e-14 * ones.max()
+    bnd = dirichlet_vertices(mesh, DIRICHLET, fes)
+    assert np.array_equal(~bnd, np.array(list(fes.FreeDofs()), dtype=bool))
+
+
+def test_dirichlet_vertices_refuses_a_count_mismatch():
+    mesh = MESHES["disk-interface"]
+    fes = H1(mesh, order=1, dirichlet=DIRICHLET)
+    assert dirichlet_vertices(mesh, DIRICHLET, fes) is not None
+    assert dirichlet_vertices(mesh, ".*", fes) is None  # the interface nodes are free in fes
+
+
+def test_p1_tables_refuse_other_spaces():
+    mesh = MESHES["structured"]
+    assert p1_tables(mesh, H1(mesh, order=2)) is None
+
+
+@pytest.mark.parametrize("name", sorted(MESHES))
+def test_p1_nodes_are_those_of_the_general_build(name):
+    mesh = MESHES[name]
+    fes = H1(mesh, order=1, dirichlet=DIRICHLET)
+    a, b = LagrangeNodes.build(fes), LagrangeNodes.from_p1_tables(fes, *p1_tables(mesh, fes))
+    # the netgen vertices, bitwise; build's mapped reference points round differently (by 1e-17) on some meshes
+    assert np.array_equal(b.coords, np.asarray(mesh.ngmesh.Coordinates())[:, :2])
+    assert np.abs(a.coords - b.coords).max() <= 1e-15 * np.abs(a.coords).max()
+    assert np.array_equal(a.elem_nodes, b.elem_nodes) and np.array_equal(a.elem_dofs, b.elem_dofs)
+    assert all(np.array_equal(p, q) for p, q in zip(a.rep, b.rep))
+    assert (a.V != b.V).nnz == 0 and np.array_equal(a.level, b.level)
+    cf = load_scene("ex9_obstacle").problem.psi
+    assert np.array_equal(a.evaluate(cf), b.evaluate(cf))
+    where = np.arange(0, fes.ndof, 3)
+    assert np.array_equal(a.evaluate(cf, where), b.evaluate(cf, where))
+    assert np.array_equal(a.evaluate(cf)[where], b.evaluate(cf, where))
+
+
+def _general(monkeypatch, problem, mesh, **kw):
+    with monkeypatch.context() as m:
+        m.setattr(fem, "p1_tables", lambda *a: None)
+        return fem.FEMDiscretization(problem, mesh, **kw)
+
+
+@pytest.mark.parametrize("scene, mesh", [("ex9_obstacle", None), ("test1", None), ("disk", "disk-interface")])
+def test_fem_p1_fast_setup_matches_the_general_path(monkeypatch, scene, mesh):
+    problem = load_scene(scene).problem
+    m = problem.domain.mesh(1) if mesh is None else MESHES[mesh]
+    fast, ref = fem.FEMDiscretization(problem, m, order=1), _general(monkeypatch, problem, m, order=1)
+    assert isinstance(fast.nodes, LagrangeNodes) and fast.nodes._points is None  # the fast path ran
+    assert ref.nodes._points is not None  # the general one
+    assert np.array_equal(fast.interior, ref.interior) and np.array_equal(fast.boundary, ref.boundary)
+    s, r = fast.system, ref.system
+    assert abs(s.K - r.K).max() <= 1e-13 * abs(r.K).max()
+    scale = max(np.abs(r.F).max(), 1e-300)
+    assert np.abs(s.F - r.F).max() <= 1e-13 * scale
+    assert np.abs(s.D - r.D).max() <= 1e-14 * r.D.max()
+    assert np.array_equal(s.b, r.b) and np.array_equal(s.up, r.up) and np.array_equal(s.lo, r.lo)
+    assert all(np.array_equal(p, q) for p, q in zip(fast.lift, ref.lift))
+
+
+def test_fem_p2_system_is_the_two_step_extraction():
+    """Order 2 (general path): K and F are, bitwise, those of the Lagrange-basis matrix indexed in two steps."""
+    problem = load_scene("ex9_obstacle").problem
+    disc = fem.FEMDiscretization(problem, problem.domain.mesh(0), order=2)
+    u, v = disc.fes.TnT()
+    S = disc.nodes.transform(scipy_csr(BilinearForm(grad(u) * grad(v) * dx).Assemble()))
+    i, b = disc.interior, disc.boundary
+    K = S[i][:, i]
+    assert all(np.array_equal(getattr(disc.system.K, a), getattr(K, a)) for a in ("indptr", "indices", "data"))
+    F = -(S[i][:, b] @ disc.lift[0][b])  # f = 0
+    assert np.array_equal(disc.system.F, F)
+
+
+@pytest.mark.parametrize("rows, cols", [("mask", "mask"), ("index", "index"), ("index", "all")])
+def test_submatrix_is_the_two_step_index(rows, cols):
+    rng = np.random.default_rng(1)
+    A = sp.random(60, 50, density=0.2, random_state=2, format="csr")
+    A.data[::7] = 0.0  # explicit zeros stay
+    rmask, cmask = rng.random(60) < 0.6, rng.random(50) < 0.5
+    r = rmask if rows == "mask" else np.flatnonzero(rmask)
+    c = {"mask": cmask, "index": np.flatnonzero(cmask), "all": np.arange(50)}[cols]
+    want = A[np.flatnonzero(rmask)][:, np.flatnonzero(cmask) if cols != "all" else np.arange(50)]
+    got = submatrix(A, r, c)
+    assert got.shape == want.shape
+    for name in ("indptr", "indices", "data"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
+
+
+def test_submatrix_refuses_bad_selections():
+    A = sp.identity(5, format="csr")
+    with pytest.raises(ValueError, match="increasing"):
+        submatrix(A, [2, 1], [0])
+    with pytest.raises(ValueError, match="mask has length 4"):
+        submatrix(A, np.ones(4, dtype=bool), [0])
+
+
+def test_assemble_csr_chunks_agree():
+    rng = np.random.default_rng(3)
+    E = rng.integers(0, 40, size=(101, 3))
+    loc = rng.random((101, 3, 3))
+    one = assemble_csr(E, lambda lo, hi: loc[lo:hi].transpose(1, 2, 0), 40, chunk=1000)
+    many = assemble_csr(E, lambda lo, hi: loc[lo:hi].transpose(1, 2, 0), 40, chunk=7)
+    dense = np.zeros((40, 40))
+    for e in range(101):
+        np.add.at(dense, (E[e][:, None], E[e][None, :]), loc[e])
+    assert np.abs(one.toarray() - dense).max() <= 1e-14 and np.abs(many.toarray() - dense).max() <= 1e-14
+    assert one.has_sorted_indices and many.has_sorted_indices and one.nnz == many.nnz
+
+
+def test_parent_pairs_are_kept_for_their_coarse_level_only():
+    problem = load_scene("ex9_obstacle").problem
+    d0, d1, d2 = (fem.FEMDiscretization(problem, m, order=1) for m in problem.domain.meshes(3))
+    pairs = fem._parent_pairs(d1, d2)
+    assert pairs is not None and fem._parent_pairs(d1, d2) is pairs
+    assert fem._parent_pairs(d0, d2) is None  # not the parent level: checked afresh, refused
+    assert fem._parent_pairs(d0, d1) is not None
