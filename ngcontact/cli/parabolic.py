@@ -24,10 +24,12 @@ def cmd_run_parabolic(scene, args, argv) -> int:
     unused = [_flag(n) for n in _STATIONARY_ONLY if getattr(args, n, None) not in (None, False)]
     if unused:
         raise UsageError(f"option(s) {', '.join(unused)} do not apply to the time-dependent scene {scene.name}")
+    if (args.dt_rule is not None or args.safety is not None) and not args.adaptive_dt:
+        raise UsageError("option(s) --dt-rule/--dt-safety need --adaptive-dt")
     given = dict(order=args.order, dt=args.dt, t_final=args.t_final, newton=args.newton, cfun=args.cfun, tol=args.tol,
                  maxit=args.maxit, estimate=True if args.estimate else None, gamma_alg=args.gamma_alg,
                  gamma_lin=args.gamma_lin, nu=args.nu, adaptive_dt=True if args.adaptive_dt else None,
-                 level=args.level, maxh=args.maxh, krylov=args.krylov)
+                 level=args.level, maxh=args.maxh, krylov=args.krylov, dt_rule=args.dt_rule, safety=args.safety)
     if args.test:
         if not scene.test_options:
             raise UsageError(f"option --test needs TEST_OPTIONS in the scene file ({scene.name} has none)")

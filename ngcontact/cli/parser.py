@@ -137,6 +137,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--t-final", type=float, dest="t_final", help="time-dependent scenes: final time T")
     r.add_argument("--adaptive-dt", action="store_true", dest="adaptive_dt",
                    help="time-dependent scenes: time steps balancing the temporal and spatial estimators")
+    r.add_argument("--dt-rule", choices=("equidistribute", "balance"), dest="dt_rule",
+                   help="with --adaptive-dt: equal contributions of the steps to the estimate (default) or "
+                        "eta_tm = safety x eta_sp per step")
+    r.add_argument("--dt-safety", type=float, dest="safety",
+                   help="with --adaptive-dt: the rule's safety factor (default 0.2 equidistribute, 0.8 balance)")
     r.add_argument("--level", type=int, help="time-dependent scenes: uniform refinements of the scene's mesh")
     r.add_argument("--maxh", type=float, help="time-dependent scenes: mesh size of the scene's (netgen) domain")
     r.add_argument("--vtk-every", type=int, dest="vtk_every", metavar="K",

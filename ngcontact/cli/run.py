@@ -153,6 +153,7 @@ def cmd_run(args, argv) -> int:
         return cmd_run_parabolic(scene, args, argv)
     check_membrane_flags(args)
     time_flags = [f for f, v in (("--dt", args.dt), ("--t-final", args.t_final), ("--adaptive-dt", args.adaptive_dt),
+                                 ("--dt-rule", args.dt_rule), ("--dt-safety", args.safety),
                                  ("--level", args.level), ("--maxh", args.maxh), ("--vtk-every", args.vtk_every)) if v]
     if time_flags:
         raise UsageError(f"option(s) {', '.join(time_flags)} need a time-dependent scene ({scene.name} is stationary)")

@@ -23,7 +23,8 @@ _MEMBRANE_ONLY = {"order": "--order", "levels": "--levels", "disc": "--disc", "s
                   "decouple": "--decouple", "newton_stop": "--newton-stop", "gamma_balance": "--gamma-balance",
                   "nu": "--nu", "ilu_drop_tol": "--ilu-drop", "ilu_fill": "--ilu-fill", "adaptive": "--adaptive",
                   "marking": "--marking", "theta": "--theta", "max_ndof": "--max-ndof", "target_eta": "--target-eta",
-                  "max_time": "--max-time", "max_levels": "--max-levels", "vtk_series": "--vtk-series"}
+                  "max_time": "--max-time", "max_levels": "--max-levels", "vtk_series": "--vtk-series",
+                  "dt_rule": "--dt-rule", "safety": "--dt-safety"}
 
 
 def _given(args, names) -> list:

@@ -42,9 +42,10 @@ PUBLISHED = {"min-p1": ("-", "~7000", "-", "~19000"), "fb-p1": ("~700", "~7000",
 #: estimate) decrease at the same rate
 MMS_H = {1: (0.02, 0.1), 2: (0.01, 0.04)}
 #: adaptive time steps (test 6.2): fixed steps dt, and adaptive runs from dt0 = 1e-3 with these safety factors
-#: (ParabolicOptions.safety: the next dt aims at eta_tm,n = safety eta_sp,n)
+#: (ParabolicOptions.safety, dt_rule: ngcontact.timestepping.driver)
 ADAPT_FIXED_DT = (1e-3, 2e-3, 4e-3, 8e-3, 1.6e-2)
-ADAPT_SAFETY = (0.8, 0.4, 0.2, 0.1, 0.05, 0.025)
+ADAPT_SAFETY = (0.8, 0.4, 0.2, 0.1, 0.05, 0.025)  # dt_rule 'balance'
+EQUI_SAFETY = (1.0, 0.4, 0.2, 0.1, 0.04, 0.02)  # dt_rule 'equidistribute'
 #: test 6.1 continued to this final time (the distance to the stationary solution decays exponentially in t)
 DISK_LONG_T = 1.5
 
@@ -160,10 +161,16 @@ def run_study(out, size: str = "quick", say=print) -> dict:
     def adapt():
         mesh = scene_mesh(rings, {"maxh": z["adapt_maxh"]})
         fixed = {f"{dt:g}": _run(rings, mesh, dt=dt, estimate=True)[1] for dt in ADAPT_FIXED_DT}
-        adaptive = {f"{sf:g}": _run(rings, mesh, dt=ADAPT_FIXED_DT[0], estimate=True, adaptive_dt=True, safety=sf)[1]
-                    for sf in ADAPT_SAFETY}
+        adaptive = {f"{sf:g}": _run(rings, mesh, dt=ADAPT_FIXED_DT[0], estimate=True, adaptive_dt=True, safety=sf,
+                                    dt_rule="balance")[1] for sf in ADAPT_SAFETY}
         return {"fixed": fixed, "adaptive": adaptive}
     R["adapt"] = _cached(out, "adapt-sweep", adapt, say)
+
+    def adapt_equi():
+        mesh = scene_mesh(rings, {"maxh": z["adapt_maxh"]})
+        return {f"{sf:g}": _run(rings, mesh, dt=ADAPT_FIXED_DT[0], estimate=True, adaptive_dt=True, safety=sf,
+                                dt_rule="equidistribute")[1] for sf in EQUI_SAFETY}
+    R["adapt-equi"] = _cached(out, "adapt-equi", adapt_equi, say)
     return R
 
 
@@ -256,15 +263,18 @@ def write_report(out, R: dict, size: str) -> Path:
         ratio = _f(rows[i - 1]["diff_half"] / d, ".2f") if i and d else "-"
         L.append(f"| {r['dt']} | {_f(r['err'])} | {_f(d)} | {ratio} |")
     a = R["adapt"]
-    fixed, adaptive = a["fixed"], a["adaptive"]
+    fixed = a["fixed"]
     ref = fixed[min(fixed, key=float)]  # dt = 1e-3, [CMAME20]'s step
     nelem = ref["nelem"]
     L += ["", f"## Adaptive time steps, test 6.2, P1, {nelem} triangles, T = 0.3", "",
-          "Fixed steps against adaptive steps (from dt0 = 1e-3, dt in [dt0/64, 64 dt0], next dt aiming at "
-          "eta_tm,n = safety x eta_sp,n); compare the number of steps at equal final estimate eta_st.", "",
+          "Fixed steps against adaptive steps (from dt0 = 1e-3, dt in [dt0/64, 64 dt0]; rules of "
+          "`ngcontact.timestepping.driver`: `balance` aims at eta_tm,n = safety x eta_sp,n, `equidistribute` (the "
+          "default) at equal contributions dt_n A_n B_n of the steps to the estimate); compare the number of steps "
+          "at equal final estimate eta_st.", "",
           "| run | steps | rejected | Newton | eta_st at T | eta_sp | eta_tm | s | fixed steps at this eta_st |",
           "|---|---|---|---|---|---|---|---|---|"]
-    for label, runs in (("fixed dt = ", fixed), ("adaptive, safety = ", adaptive)):
+    for label, runs in (("fixed dt = ", fixed), ("balance, safety = ", a["adaptive"]),
+                        ("equidistribute, safety = ", R["adapt-equi"])):
         for k, s in runs.items():
             eq = "" if runs is fixed else _f(_fixed_steps_at(fixed, s["eta_st"]), ".0f")
             L.append(f"| {label}{k} | {s['steps']} | {s['rejected_steps']} | {s['newton_total']} | {_f(s['eta_st'])} | "

@@ -14,10 +14,20 @@ from the previous time step it converged at every step of test 6.2, whereas the 
 P1, maxh 0.1; ``line_search=None`` restores it).
 
 Adaptive time steps (``adaptive_dt``; not in [CMAME20]): after step n the temporal part
-eta_tm,n = B_n / sqrt(3) is compared with the spatial part eta_sp,n = A_n.  The step is rejected
-(and redone with a smaller dt) when eta_tm,n > ``reject`` eta_sp,n and dt > dt_min; the next dt is
-dt * clip(``safety`` eta_sp,n / eta_tm,n, 1/4, 2), rounded down to dt_0 2^k so that only few
-distinct matrices E (and factorizations) occur, within [dt_min, dt_max].  The mesh is fixed for
+B_n = |||u^n - u^{n-1}||| (eta_tm,n = B_n / sqrt(3)) is compared with the spatial part A_n = eta_sp,n.
+The step is rejected (and redone with a smaller dt) when eta_tm,n > ``reject`` eta_sp,n and dt > dt_min.
+The next dt is dt * clip(factor, 1/4, 2), rounded down to dt_0 2^k so that only few distinct matrices E
+(and factorizations) occur, within [dt_min, dt_max], with the factor of ``dt_rule``:
+
+* ``equidistribute`` (default): every step adds the same amount to the space-time estimate.  Its
+  temporal part enters eta_st^2 through sum_n dt_n (A_n B_n + B_n^2 / 3), and B_n ~ dt_n |||d_t u|||, so
+  the steps that minimize it for a given number of steps make dt_n A_n B_n equal; the target is
+  dt_{n+1} A_n B_n (dt_{n+1} / dt_n) = ``safety`` dt_0 Abar^2, Abar^2 = (sum_m dt_m A_m^2) / t_n (the
+  mean spatial part so far), i.e. factor = (safety dt_0 Abar^2 / (dt_n A_n B_n))^(1/2).
+* ``balance``: eta_tm,n = ``safety`` eta_sp,n, i.e. factor = safety sqrt(3) A_n / B_n.  This makes
+  B_n proportional to A_n at every step and so spends many steps where u changes fast.
+
+The mesh is fixed for
 the whole run (chosen at the start; NGSolve has no coarsening, and refining along the moving contact
 set without coarsening would leave the whole swept region fine).
 """
@@ -40,6 +50,9 @@ from .euler import BackwardEuler, SharedDirectSolve
 __all__ = ["ParabolicOptions", "ParabolicResult", "run_parabolic", "NEWTON_MODES"]
 
 NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive")
+DT_RULES = ("balance", "equidistribute")
+#: default safety factor per rule (results/parabolic/REPORT.md, "Adaptive time steps")
+DT_SAFETY = {"balance": 0.8, "equidistribute": 0.2}
 
 
 def _positive(name, v, allow_none=False):
@@ -69,7 +82,8 @@ class ParabolicOptions:
     adaptive_dt: bool = False
     dt_min: Optional[float] = None  # default dt / 64
     dt_max: Optional[float] = None  # default 64 dt
-    safety: float = 0.8
+    safety: Optional[float] = None  # adaptive dt: default 0.8 ('balance') or 0.2 ('equidistribute')
+    dt_rule: str = "equidistribute"  # adaptive dt: DT_RULES (module docstring)
     reject: float = 2.0
     max_steps: int = 100000
 
@@ -85,7 +99,11 @@ class ParabolicOptions:
                 raise option_error(name, getattr(self, name), "True or False")
         _positive("dt_min", self.dt_min, allow_none=True)
         _positive("dt_max", self.dt_max, allow_none=True)
-        _positive("safety", self.safety)
+        if self.dt_rule not in DT_RULES:
+            raise option_error("dt_rule", self.dt_rule, f"one of {DT_RULES}")
+        _positive("safety", self.safety, allow_none=True)
+        if self.safety is None:
+            object.__setattr__(self, "safety", DT_SAFETY[self.dt_rule])
         if not (isinstance(self.reject, (int, float)) and self.reject >= 1):
             raise option_error("reject", self.reject, "a number >= 1")
         if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int) or self.max_steps < 1:
@@ -238,8 +256,12 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
         if snapshot_every and (n % snapshot_every == 0 or t >= T * (1 - 1e-12)):
             res.snapshots.append((n, t, x.copy(), y.copy()))
         if o.adaptive_dt and est is not None:
-            ratio = A * math.sqrt(3) / B if B > 0 else 2.0 / o.safety
-            dt = min(max(_quantize(h * min(max(o.safety * ratio, 0.25), 2.0), o.dt), dt_min), dt_max)
+            if o.dt_rule == "balance":  # eta_tm,n = safety eta_sp,n
+                factor = o.safety * A * math.sqrt(3) / B if B > 0 else 2.0
+            else:  # next dt A B = safety dt0 Abar^2 with B ~ dt (module docstring); st.sp2 = sum_m dt_m A_m^2
+                abar2 = st.sp2 / t
+                factor = math.sqrt(o.safety * o.dt * abar2 / (A * B * h)) if A * B > 0 else 2.0
+            dt = min(max(_quantize(h * min(max(factor, 0.25), 2.0), o.dt), dt_min), dt_max)
         eta_txt = f" eta_sp={row['eta_sp_n']:.2e} eta_tm={row['eta_tm_n']:.2e}" if "eta_sp_n" in row else ""
         say(f"  step {n}: t={t:.4g} dt={h:.3g} newton={sol.iterations} gmres={sol.gmres_total} "
             f"active={row['active_nodes']}{eta_txt}")
