@@ -258,3 +258,25 @@ def test_equidistributing_steps_beat_fixed_steps():
     ad = run_parabolic(sc.problem, mesh, ParabolicOptions(dt=2e-3, t_final=0.1, adaptive_dt=True, safety=0.2)).summary
     n_fixed = _fixed_steps_at(fixed, ad["eta_st"])
     assert n_fixed is not None and ad["steps"] < 0.85 * n_fixed, (ad["steps"], n_fixed)
+
+
+def test_spacetime_picture_uses_the_step_times():
+    """Nonuniform steps: the contact picture's columns sit at the real times (t_{n-1}, t_n]."""
+    from types import SimpleNamespace
+
+    import matplotlib.pyplot as plt
+
+    from ngcontact.timestepping.plots import write_parabolic_plots
+
+    ts = [0.001, 0.002, 0.01, 0.1]
+    rows = [dict(t=t, contact_area=0.0, newton_its=1, gmres_its=0) for t in ts]
+    frac = [np.array([0.0, 0.0]), np.array([0.0, 0.0]), np.array([1.0, 0.0]), np.array([1.0, 1.0])]
+    res = SimpleNamespace(rows=rows, spacetime=list(zip(ts, frac)), bins=np.array([0.0, 0.5, 1.0]))
+    figs = write_parabolic_plots(res, "t")
+    mesh = figs["contact_spacetime.png"].axes[0].collections[0]
+    x = np.unique(mesh.get_coordinates()[..., 0])
+    assert np.allclose(x, [0.0] + ts)
+    # the first column in contact covers (0.002, 0.01]
+    assert np.allclose(np.asarray(mesh.get_array()).reshape(2, 4)[0], [0, 0, 1, 1])
+    for f in figs.values():
+        plt.close(f)

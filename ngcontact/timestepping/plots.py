@@ -34,8 +34,9 @@ def write_parabolic_plots(result, title: str) -> dict:
     fig, ax = plt.subplots(figsize=(6, 4))
     if result.spacetime:
         img = np.array([f for _, f in result.spacetime]).T
-        ax.imshow(img, origin="lower", aspect="auto", cmap="Greys", vmin=0, vmax=1,
-                  extent=(0.0, t[-1], result.bins[0], result.bins[-1]))
+        # column n covers the step (t_{n-1}, t_n]: the real time edges, also for adaptive (nonuniform) steps
+        t_edges = np.concatenate([[0.0], [tn for tn, _ in result.spacetime]])
+        ax.pcolormesh(t_edges, result.bins, img, cmap="Greys", vmin=0, vmax=1, shading="flat")
     ax.set_xlabel("t")
     ax.set_ylabel("position (r or x)")
     ax.set_title(f"{title}: contact (black) in space-time")
