@@ -36,6 +36,7 @@ preconditioner of [JSC20] is "ILU", its parameters are not given.
 """
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass, field
 from typing import Callable, List, Optional
@@ -82,8 +83,6 @@ class PreconditionerCache:
 
     @staticmethod
     def _key(A, extra) -> tuple:
-        import hashlib
-
         A = sp.csr_matrix(A)
         h = hashlib.blake2b(digest_size=16)
         for arr in (A.indptr, A.indices, A.data) + ((np.asarray(extra),) if extra is not None else ()):

@@ -158,19 +158,17 @@ def run_study(out, size: str = "quick", say=print) -> dict:
         return out_rows
     R["mms-dt"] = _cached(out, "mms-dt", mms_dt, say)
 
+    def adaptive_steps(rule, safeties, mesh):
+        return {f"{sf:g}": _run(rings, mesh, dt=ADAPT_FIXED_DT[0], estimate=True, adaptive_dt=True, safety=sf,
+                                dt_rule=rule)[1] for sf in safeties}
+
     def adapt():
         mesh = scene_mesh(rings, {"maxh": z["adapt_maxh"]})
         fixed = {f"{dt:g}": _run(rings, mesh, dt=dt, estimate=True)[1] for dt in ADAPT_FIXED_DT}
-        adaptive = {f"{sf:g}": _run(rings, mesh, dt=ADAPT_FIXED_DT[0], estimate=True, adaptive_dt=True, safety=sf,
-                                    dt_rule="balance")[1] for sf in ADAPT_SAFETY}
-        return {"fixed": fixed, "adaptive": adaptive}
+        return {"fixed": fixed, "adaptive": adaptive_steps("balance", ADAPT_SAFETY, mesh)}
     R["adapt"] = _cached(out, "adapt-sweep", adapt, say)
-
-    def adapt_equi():
-        mesh = scene_mesh(rings, {"maxh": z["adapt_maxh"]})
-        return {f"{sf:g}": _run(rings, mesh, dt=ADAPT_FIXED_DT[0], estimate=True, adaptive_dt=True, safety=sf,
-                                dt_rule="equidistribute")[1] for sf in EQUI_SAFETY}
-    R["adapt-equi"] = _cached(out, "adapt-equi", adapt_equi, say)
+    R["adapt-equi"] = _cached(out, "adapt-equi", lambda: adaptive_steps(
+        "equidistribute", EQUI_SAFETY, scene_mesh(rings, {"maxh": z["adapt_maxh"]})), say)
     return R
 
 
@@ -244,7 +242,8 @@ def write_report(out, R: dict, size: str) -> Path:
               "eta_f | eta_C | bound proven |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for i, s in enumerate(rows):
             rate = "-" if i == 0 else _f(math.log(rows[i - 1]["err_spacetime"] / s["err_spacetime"]) / math.log(2), ".2f")
-            L.append(f"| {i} | {s['nelem']} | {dt / 2 ** (p * i):.3g} | {_f(s['err_spacetime'])} | {rate} | {_f(s.get('eta_st'))} | "
+            L.append(f"| {i} | {s['nelem']} | {dt / 2 ** (p * i):.3g} | {_f(s['err_spacetime'])} | {rate} | "
+                     f"{_f(s.get('eta_st'))} | "
                      f"{_f(s.get('i_eff'), '.2f')} | {_f(s.get('eta_sp'))} | {_f(s.get('eta_tm'))} | {_f(s.get('eta_f'))} | "
                      f"{_f(s.get('eta_C'))} | {s.get('bound_proven')} |")
         h = [0.5 ** i for i in range(len(rows))]

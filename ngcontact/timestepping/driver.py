@@ -27,9 +27,8 @@ The next dt is dt * clip(factor, 1/4, 2), rounded down to dt_0 2^k so that only 
 * ``balance``: eta_tm,n = ``safety`` eta_sp,n, i.e. factor = safety sqrt(3) A_n / B_n.  This makes
   B_n proportional to A_n at every step and so spends many steps where u changes fast.
 
-The mesh is fixed for
-the whole run (chosen at the start; NGSolve has no coarsening, and refining along the moving contact
-set without coarsening would leave the whole swept region fine).
+The mesh is fixed for the whole run (chosen at the start; NGSolve has no coarsening, and refining along
+the moving contact set without coarsening would leave the whole swept region fine).
 """
 from __future__ import annotations
 
