@@ -77,6 +77,12 @@ def _level(A: sp.csr_matrix, P: sp.csr_matrix, chebyshev: bool) -> MultigridLeve
     return MultigridLevel(A, P, dinv, lmax)
 
 
+def _transpose_csr(M: sp.csr_matrix) -> sp.csr_matrix:
+    """M^T in CSR form: the Galerkin products then multiply CSR by CSR.  scipy's CSC @ CSR converts
+    the right factor (A P, the larger) to CSC first; transposing P (two entries per row) is cheaper."""
+    return M.T.tocsr()
+
+
 def field_prolongation(P: sp.csr_matrix, nfields: int) -> sp.csr_matrix:
     """blockdiag(P, ..., P): the prolongation of ``nfields`` stacked fields."""
     return P if nfields == 1 else sp.block_diag([P] * nfields, format="csr")
@@ -125,7 +131,7 @@ class Multigrid:
                 self._finest = (Ps[-1], used)
             P = P[:, used].tocsr()
             levels.append(_level(A, P, smoother == "chebyshev"))
-            A = (P.T @ (A @ P)).tocsr()
+            A = _transpose_csr(P) @ (A @ P)  # CSR products only (a CSC factor would convert A P)
             P = Ps[j - 1][used] if j > 0 else None
         levels.append(MultigridLevel(A, None))
         self.levels = levels  # fine first

@@ -390,7 +390,8 @@ class LinearizedStep:
         """The reduced matrix Z^T Kaug Z (formed on first use)."""
         if self._A is None:
             if self.slave_is_lo.any():  # slaves follow masters: Z merges columns
-                self._A = (self.Z.T @ self._Kaug @ self.Z).tocsr()
+                ZT = self.Z.T.tocsr()  # CSR products only: Z^T as CSC would convert Z^T K to CSC
+                self._A = (ZT @ self._Kaug) @ self.Z
             else:  # Z selects the kept unknowns
                 self._A = submatrix(self._Kaug, self.keep, self.keep)  # one pass, no K[keep] copy
         return self._A
