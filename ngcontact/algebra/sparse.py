@@ -6,7 +6,7 @@ copy of the rows).  The result's arrays are those of the two-step index, entry f
 inside the rows), so every later product or sweep over it rounds the same way.
 
 :func:`assemble_csr` sums element matrices into a CSR matrix in chunks of elements, so the COO
-triplets of all elements never exist at once.
+triplets of all elements never exist at once; it stores the nonzero entries only.
 """
 from __future__ import annotations
 
@@ -54,33 +54,28 @@ def submatrix(A: sp.spmatrix, rows, cols) -> sp.csr_matrix:
 def assemble_csr(elements: np.ndarray, local, n: int, chunk: int = 1 << 17) -> sp.csr_matrix:
     """Sum of element matrices: ``elements`` (ne, k) the global numbers of each element's k unknowns,
     ``local(lo, hi)`` the element matrices of elements lo..hi-1 as a (k, k, hi - lo) array (entry (i, j) of all
-    elements contiguous: filled without strided writes); an (n, n) CSR matrix with
-    sorted, summed indices (explicit zeros kept: the pattern is every pair of unknowns sharing an element).
+    elements contiguous: filled without strided writes); an (n, n) CSR matrix in canonical form (sorted,
+    summed indices) that stores the nonzero entries only: a coupling that sums to exactly zero (P1 stiffness
+    across the right angles of a criss-cross or structured mesh) is not stored.
 
-    Each chunk of elements is summed on its own first (COO -> CSR), and the chunks' summed triplets once
-    more at the end: the triplets of all ne k^2 element entries never exist at once."""
+    Each chunk of elements is summed on its own (COO -> CSR), and the chunks' CSR matrices are added (a
+    linear merge of sorted rows; an entry is the sum of its chunks' partial sums in chunk order): the
+    triplets of all ne k^2 element entries never exist at once."""
     ne, k = elements.shape
     itype = np.int32 if n < np.iinfo(np.int32).max else np.int64
-    rows, cols, vals = [], [], []
+    out = None
     for lo in range(0, ne, chunk):
         hi = min(ne, lo + chunk)
         E = elements[lo:hi].astype(itype, copy=False)
         Et = np.ascontiguousarray(E.T)  # (k, m): entry (i, j, e) of the element matrices is (E[e, i], E[e, j])
-        part = sp.coo_matrix((np.asarray(local(lo, hi), dtype=float).ravel(),
+        part = sp.csr_matrix((np.asarray(local(lo, hi), dtype=float).ravel(),
                               (np.repeat(Et[:, None, :], k, axis=1).ravel(),
-                               np.broadcast_to(Et[None, :, :], (k, k, hi - lo)).ravel())), shape=(n, n)).tocsr()
-        part = part.tocoo()
-        rows.append(part.row.astype(itype, copy=False))
-        cols.append(part.col.astype(itype, copy=False))
-        vals.append(part.data)
+                               np.broadcast_to(Et[None, :, :], (k, k, hi - lo)).ravel())), shape=(n, n))
+        part.sum_duplicates()
+        out = part if out is None else out + part
         del part
-    if not rows:
+    if out is None:
         return sp.csr_matrix((n, n))
-    if len(rows) == 1:
-        out = sp.csr_matrix((vals[0], (rows[0], cols[0])), shape=(n, n))
-    else:
-        out = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                            shape=(n, n)).tocsr()
-    out.sum_duplicates()
+    out.eliminate_zeros()
     out.sort_indices()
     return out

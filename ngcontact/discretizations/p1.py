@@ -23,7 +23,11 @@ import scipy.sparse as sp
 
 from ..algebra.sparse import assemble_csr
 
-__all__ = ["p1_tables", "p1_matrices", "dirichlet_vertices"]
+__all__ = ["p1_tables", "p1_matrices", "dirichlet_vertices", "RIGHT_ANGLE"]
+
+#: relative size below which a P1 stiffness coupling counts as the zero of a right angle (:func:`p1_matrices`):
+#: rounding leaves a few machine epsilons, a genuine coupling is cot of an angle that differs from 90 degrees
+RIGHT_ANGLE = 1e-14
 
 
 def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
@@ -46,9 +50,14 @@ def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
 
 
 def p1_matrices(X: np.ndarray, T: np.ndarray):
-    """(S, w): the P1 stiffness matrix (nv x nv CSR, sorted indices, every vertex pair of a triangle stored)
-    and the lumped weights w_a = (psi_a, 1), the sum of |T| / 3 over the triangles at a; one pass over the
-    triangles in chunks (:func:`~ngcontact.algebra.sparse.assemble_csr`)."""
+    """(S, w): the P1 stiffness matrix (nv x nv CSR, sorted indices) and the lumped weights w_a = (psi_a, 1), the sum of |T| / 3 over the triangles at a; one pass over the
+    triangles in chunks (:func:`~ngcontact.algebra.sparse.assemble_csr`).
+
+    S stores the couplings that do not vanish: an off-diagonal entry with |S_ab| <= ``RIGHT_ANGLE`` sqrt(S_aa S_bb)
+    is dropped.  Such an entry is the sum of cot(angle) / 2 over the angles opposite to the edge ab; it is zero
+    across right angles (a pair of right-angled triangles on a structured or criss-cross mesh, where about
+    30 % of the vertex pairs of the triangles are such), computed as 0 or as a rounding residue of a few
+    machine epsilons relative to sqrt(S_aa S_bb).  Not storing them makes every product with S cheaper."""
     w = np.zeros(len(X))
 
     def local(lo, hi):
@@ -68,7 +77,12 @@ def p1_matrices(X: np.ndarray, T: np.ndarray):
                 loc[j, i] = loc[i, j]
         return loc
 
-    return assemble_csr(T, local, len(X), chunk=1 << 19), w
+    S = assemble_csr(T, local, len(X), chunk=1 << 19)
+    d = np.sqrt(S.diagonal())
+    rows = np.repeat(np.arange(S.shape[0], dtype=S.indices.dtype), np.diff(S.indptr))
+    S.data[(rows != S.indices) & (np.abs(S.data) <= RIGHT_ANGLE * d[rows] * d[S.indices])] = 0.0
+    S.eliminate_zeros()
+    return S, w
 
 
 def dirichlet_vertices(mesh, region: str, fes=None) -> Optional[np.ndarray]:
