@@ -384,6 +384,7 @@ class LinearizedStep:
     slaves: np.ndarray
     slave_is_lo: np.ndarray
     _Kaug: Optional[sp.csr_matrix] = field(default=None, repr=False)
+    _Ks: Optional[sp.csr_matrix] = field(default=None, repr=False)
 
     @property
     def A(self) -> sp.csr_matrix:
@@ -417,7 +418,17 @@ class LinearizedStep:
         mixed, eq = self.mixed, self.eq
         y_new[mixed] = self.c0[mixed] - self.w[mixed] * (s._B @ x_new - s.b)[mixed]
         if len(self.eq_rows):
-            r = s.K @ x_new - s._B.T @ (s.D * np.where(eq, 0.0, y_new)) - s.F
+            # the slave equations: (K x' - B^T D y' - F)[slave] = 0, where B^T D y' on the slave of row l is
+            # +-D_l y'_l only (each unknown lies in at most one constraint row); the rows of K at the slaves only
+            r = self._K_slaves @ x_new - s.F[self.slaves]
             sign = np.where(self.slave_is_lo, -1.0, 1.0)
-            y_new[self.eq_rows] = r[self.slaves] / (sign * s.D[self.eq_rows])
+            y_new[self.eq_rows] = r / (sign * s.D[self.eq_rows])
         return x_new, y_new
+
+    @property
+    def _K_slaves(self) -> sp.csr_matrix:
+        """The rows of K at the slave unknowns (formed on first use: :meth:`recover` runs once per CG
+        monitor check and once per step)."""
+        if self._Ks is None:
+            self._Ks = self.system.K[self.slaves]
+        return self._Ks
