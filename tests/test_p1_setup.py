@@ -7,7 +7,7 @@ from ngsolve import H1, BilinearForm, LinearForm, dx, grad
 
 import ngcontact.discretizations.fem as fem
 from ngcontact import CrissCrossSquare, StructuredSquare
-from ngcontact.algebra.sparse import assemble_csr, submatrix
+from ngcontact.algebra.sparse import submatrix
 from ngcontact.discretizations.base import scipy_csr
 from ngcontact.discretizations.lagrange import LagrangeNodes
 from ngcontact.discretizations.p1 import dirichlet_vertices, p1_matrices, p1_tables
@@ -139,17 +139,17 @@ def test_submatrix_refuses_bad_selections():
         submatrix(A, np.ones(4, dtype=bool), [0])
 
 
-def test_assemble_csr_chunks_agree():
-    rng = np.random.default_rng(3)
-    E = rng.integers(0, 40, size=(101, 3))
-    loc = rng.random((101, 3, 3))
-    one = assemble_csr(E, lambda lo, hi: loc[lo:hi].transpose(1, 2, 0), 40, chunk=1000)
-    many = assemble_csr(E, lambda lo, hi: loc[lo:hi].transpose(1, 2, 0), 40, chunk=7)
-    dense = np.zeros((40, 40))
-    for e in range(101):
-        np.add.at(dense, (E[e][:, None], E[e][None, :]), loc[e])
-    assert np.abs(one.toarray() - dense).max() <= 1e-14 and np.abs(many.toarray() - dense).max() <= 1e-14
-    assert one.has_sorted_indices and many.has_sorted_indices and one.nnz == many.nnz == np.count_nonzero(dense)
+@pytest.mark.parametrize("name", sorted(MESHES))
+def test_p1_matrices_chunks_agree(name):
+    """Chunks of triangles summed as CSR matrices: the same matrix as one chunk, canonical, symmetric."""
+    X, T = p1_tables(MESHES[name])
+    one, w1 = p1_matrices(X, T)
+    many, w7 = p1_matrices(X, T, chunk=7)
+    assert one.has_canonical_format and many.has_canonical_format
+    assert np.array_equal(one.indptr, many.indptr) and np.array_equal(one.indices, many.indices)
+    assert np.abs(one.data - many.data).max() <= 1e-15 * np.abs(one.data).max()
+    assert np.abs(w1 - w7).max() <= 1e-15 * w1.max()
+    assert abs(one - one.T).max() == 0.0
 
 
 def test_parent_pairs_are_kept_for_their_coarse_level_only():

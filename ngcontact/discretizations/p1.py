@@ -21,7 +21,6 @@ from typing import Optional, Tuple
 import numpy as np
 import scipy.sparse as sp
 
-from ..algebra.sparse import assemble_csr
 
 __all__ = ["p1_tables", "p1_matrices", "dirichlet_vertices", "RIGHT_ANGLE"]
 
@@ -49,39 +48,54 @@ def p1_tables(mesh, fes=None) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     return X, nodes[:, :3].astype(itype) - 1
 
 
-def p1_matrices(X: np.ndarray, T: np.ndarray):
-    """(S, w): the P1 stiffness matrix (nv x nv CSR, sorted indices) and the lumped weights w_a = (psi_a, 1), the sum of |T| / 3 over the triangles at a; one pass over the
-    triangles in chunks (:func:`~ngcontact.algebra.sparse.assemble_csr`).
+def p1_matrices(X: np.ndarray, T: np.ndarray, chunk: int = 1 << 19):
+    """(S, w): the P1 stiffness matrix (nv x nv CSR, canonical: sorted, summed indices) and the lumped weights
+    w_a = (psi_a, 1), the sum of |T| / 3 over the triangles at a.
+
+    One pass over the triangles in chunks of ``chunk``: the diagonal and w are sums per vertex (bincount), the
+    couplings are summed once per vertex pair a < b (the upper triangle U: 3 entries per triangle instead of
+    9), and S = U + U^T + diag.
 
     S stores the couplings that do not vanish: an off-diagonal entry with |S_ab| <= ``RIGHT_ANGLE`` sqrt(S_aa S_bb)
     is dropped.  Such an entry is the sum of cot(angle) / 2 over the angles opposite to the edge ab; it is zero
     across right angles (a pair of right-angled triangles on a structured or criss-cross mesh, where about
     30 % of the vertex pairs of the triangles are such), computed as 0 or as a rounding residue of a few
     machine epsilons relative to sqrt(S_aa S_bb).  Not storing them makes every product with S cheaper."""
-    w = np.zeros(len(X))
-
-    def local(lo, hi):
-        Tc = T[lo:hi]
+    nv = len(X)
+    w, diag = np.zeros(nv), np.zeros(nv)
+    U = None
+    for lo in range(0, len(T), chunk):
+        Tc = T[lo:lo + chunk]
         x0, x1, x2 = (X[Tc[:, k], 0] for k in range(3))
         y0, y1, y2 = (X[Tc[:, k], 1] for k in range(3))
         ex, ey = (x2 - x1, x0 - x2, x1 - x0), (y2 - y1, y0 - y2, y1 - y0)  # e_i opposite to vertex i
         area2 = np.abs(ex[1] * ey[2] - ey[1] * ex[2])  # 2 |T|
-        w[:] += np.bincount(Tc.ravel(), weights=np.repeat(area2 / 6.0, 3), minlength=len(X))
+        w += np.bincount(Tc.ravel(), weights=np.repeat(area2 / 6.0, 3), minlength=nv)
         inv = 0.5 / area2
-        loc = np.empty((3, 3, hi - lo))
-        for i in range(3):
-            for j in range(i, 3):
-                np.multiply(ex[i], ex[j], out=loc[i, j])
-                loc[i, j] += ey[i] * ey[j]
-                loc[i, j] *= inv
-                loc[j, i] = loc[i, j]
-        return loc
-
-    S = assemble_csr(T, local, len(X), chunk=1 << 19)
-    d = np.sqrt(S.diagonal())
-    rows = np.repeat(np.arange(S.shape[0], dtype=S.indices.dtype), np.diff(S.indptr))
-    S.data[(rows != S.indices) & (np.abs(S.data) <= RIGHT_ANGLE * d[rows] * d[S.indices])] = 0.0
-    S.eliminate_zeros()
+        rows, cols, vals = [], [], []
+        for i, j in ((0, 0), (1, 1), (2, 2), (1, 2), (2, 0), (0, 1)):
+            v = ex[i] * ex[j]
+            v += ey[i] * ey[j]
+            v *= inv  # (grad psi_i, grad psi_j)_T = e_i . e_j / (4 |T|)
+            if i == j:
+                diag += np.bincount(Tc[:, i], weights=v, minlength=nv)
+            else:
+                a, b = Tc[:, i], Tc[:, j]
+                rows.append(np.minimum(a, b))
+                cols.append(np.maximum(a, b))
+                vals.append(v)
+        part = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(nv, nv))
+        part.sum_duplicates()
+        U = part if U is None else U + part
+        del part, rows, cols, vals
+    if U is None:
+        return sp.csr_matrix((nv, nv)), w
+    d = np.sqrt(diag)
+    r = np.repeat(np.arange(nv, dtype=U.indices.dtype), np.diff(U.indptr))
+    U.data[np.abs(U.data) <= RIGHT_ANGLE * d[r] * d[U.indices]] = 0.0
+    U.eliminate_zeros()
+    S = U + U.T.tocsr() + sp.diags(diag, format="csr")
+    S.sort_indices()
     return S, w
 
 
