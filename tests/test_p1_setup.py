@@ -152,6 +152,22 @@ def test_p1_matrices_chunks_agree(name):
     assert abs(one - one.T).max() == 0.0
 
 
+@pytest.mark.parametrize("scene", ["ex9_obstacle", "test1"])
+def test_p1_data_in_one_pass_are_the_single_evaluations(scene):
+    """The data evaluated in one pass (a vector CoefficientFunction) are, bitwise, those of one evaluation each."""
+    problem = load_scene(scene).problem
+    disc = fem.FEMDiscretization(problem, problem.domain.mesh(1), order=1)
+    got = fem._p1_data(problem, disc.nodes, disc.boundary)
+    assert list(got) == list(problem.data())
+    for name, cf in problem.data().items():
+        if name in problem.dirichlet_names:
+            want = np.zeros(disc.nodes.ndof)
+            want[disc.boundary] = disc.nodes.evaluate(cf, disc.boundary)
+        else:
+            want = disc.nodes.evaluate(cf)
+        assert np.array_equal(got[name], want), name
+
+
 def test_parent_pairs_are_kept_for_their_coarse_level_only():
     problem = load_scene("ex9_obstacle").problem
     d0, d1, d2 = (fem.FEMDiscretization(problem, m, order=1) for m in problem.domain.meshes(3))

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from ngsolve import BND, VOL, ElementId, IntegrationRule, x, y
+from ngsolve import BND, VOL, CoefficientFunction, ElementId, IntegrationRule, x, y
 
 from .nodesets import lattice, reference_nodes
 
@@ -181,6 +181,23 @@ class LagrangeNodes:
             e_of, j_of = self.rep if where is None else (self.rep[0][where], self.rep[1][where])
             pts = meshpoints(self._mesh, e_of, self._ref[j_of, 0], self._ref[j_of, 1])
         return np.asarray(cf(pts)).reshape(-1)
+
+    def evaluate_many(self, cfs) -> np.ndarray:
+        """Values of scalar CoefficientFunctions at every node, (len(cfs), ndof): one compiled vector-valued
+        CoefficientFunction evaluated in one pass (the points are mapped once; the same values as
+        :meth:`evaluate` of each)."""
+        cfs = list(cfs)
+        if len(cfs) == 1:
+            return self.evaluate(cfs[0].Compile())[None, :]
+        return self.evaluate_vector(CoefficientFunction(tuple(cfs)).Compile(), len(cfs))
+
+    def evaluate_vector(self, cf, k: int) -> np.ndarray:
+        """Values of a ``k``-vector CoefficientFunction at every node, (k, ndof)."""
+        if self._points is not None:
+            pts = self._points
+        else:
+            pts = meshpoints(self._mesh, self.rep[0], self._ref[self.rep[1], 0], self._ref[self.rep[1], 1])
+        return np.asarray(cf(pts)).reshape(-1, k).T.copy()
 
     def from_values(self, values: np.ndarray) -> np.ndarray:
         """Coefficients in this basis of the interpolant with the given values at the nodes (the values)."""
