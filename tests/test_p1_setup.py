@@ -175,3 +175,25 @@ def test_parent_pairs_are_kept_for_their_coarse_level_only():
     assert pairs is not None and fem._parent_pairs(d1, d2) is pairs
     assert fem._parent_pairs(d0, d2) is None  # not the parent level: checked afresh, refused
     assert fem._parent_pairs(d0, d1) is not None
+
+
+def test_load_compiled_is_the_same_vector_and_zero_data_stay_folded():
+    """assemble_load with compiled data: bitwise the load of the plain integrand; a zero datum is recognized on
+    the plain integrand (NGSolve folds 0 * v), so the compiled one is never built or assembled."""
+    from ngsolve import CoefficientFunction, x, y
+
+    from ngcontact.discretizations.base import assemble_load
+
+    mesh = load_scene("test1").problem.domain.mesh(1)
+    fes = H1(mesh, order=2)
+    v = fes.TestFunction()
+    f = (x - 0.3) ** 3 * y + 1
+    plain = assemble_load(fes, lambda: f * v * dx(bonus_intorder=4))
+    fast = assemble_load(fes, lambda: f * v * dx(bonus_intorder=4), lambda: f.Compile() * v * dx(bonus_intorder=4))
+    assert np.array_equal(plain, fast) and np.abs(plain).max() > 0
+    zero = CoefficientFunction(0.0)
+
+    def never():
+        raise AssertionError("the compiled integrand of zero data was built")
+
+    assert not assemble_load(fes, lambda: zero * v * dx, never).any()

@@ -120,10 +120,15 @@ def scipy_csr(bf_or_mat) -> sp.csr_matrix:
     return sp.csr_matrix((np.array(data), np.array(indices), np.array(indptr)), shape=(mat.height, mat.width))
 
 
-def assemble_load(fes, integrand) -> np.ndarray:
-    """Vector of the linear form ``integrand()`` on ``fes``; zero if NGSolve folds it to 0 (zero data)."""
+def assemble_load(fes, integrand, compiled=None) -> np.ndarray:
+    """Vector of the linear form ``integrand()`` on ``fes``; zero if NGSolve folds it to 0 (zero data).
+
+    ``compiled``: the same integrand with compiled data (the same vector, assembled faster), assembled once
+    ``integrand()`` has shown that it is not zero (a compiled zero is no longer folded away)."""
     try:
         lf = LinearForm(integrand())
+        if compiled is not None:
+            lf = LinearForm(compiled())
         with TaskManager():
             lf.Assemble()
     except Exception as exc:  # NGSolve folds 0 * v away: "Linearform must have TestFunction"

@@ -160,7 +160,7 @@ class DGDiscretization(BrokenDiscretization):
         bonus = dict(bonus_intorder=quad_bonus)
         F = []
         for mu, f, gd in zip(problem.mus, problem.loads, problem.dirichlet):
-            Ff = assemble_load(fes, lambda: f * v * dx(**bonus))
+            Ff = assemble_load(fes, lambda: f * v * dx(**bonus), lambda: f.Compile() * v * dx(**bonus))
             Fg = assemble_load(fes, lambda: (-th * gd * grad(v) * nrm + sigma * gd * v) * ds(skeleton=True, **bonus))
             F.append(T.T @ (Ff + mu * Fg))
         self.n1 = n1 = ne * nc

@@ -150,8 +150,10 @@ class FEMDiscretization(Discretization):
         self.time_assembly = time.perf_counter() - t0
 
     def _load(self, f, v) -> np.ndarray:
-        """(f, phi_i) for the hierarchical basis; zero for an identically zero f."""
-        return assemble_load(self.fes, lambda: f * v * dx(bonus_intorder=self.quad_bonus))
+        """(f, phi_i) for the hierarchical basis; zero for an identically zero f.  Assembled with f compiled: the
+        same vector (bitwise), about twice as fast."""
+        return assemble_load(self.fes, lambda: f * v * dx(bonus_intorder=self.quad_bonus),
+                             lambda: f.Compile() * v * dx(bonus_intorder=self.quad_bonus))
 
     # ------------------------------------------------------------------ sizes
     @property
