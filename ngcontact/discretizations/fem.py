@@ -49,10 +49,12 @@ def _block_diag_csr(blocks) -> sp.csr_matrix:
     blocks = [sp.csr_matrix(B) for B in blocks]
     if len(blocks) == 1:
         return blocks[0]
-    indptr, indices, data, nnz, r, c = [np.zeros(1, dtype=np.int64)], [], [], 0, 0, 0
+    big = max(sum(B.nnz for B in blocks), sum(B.shape[1] for B in blocks)) >= np.iinfo(np.int32).max
+    itype = np.int64 if big else np.int32  # the index type scipy would choose (no second conversion)
+    indptr, indices, data, nnz, r, c = [np.zeros(1, dtype=itype)], [], [], 0, 0, 0
     for B in blocks:
-        indptr.append(B.indptr[1:].astype(np.int64) + nnz)
-        indices.append(B.indices.astype(np.int64) + c)
+        indptr.append(B.indptr[1:].astype(itype) + itype(nnz))
+        indices.append(B.indices.astype(itype) + itype(c))
         data.append(B.data)
         nnz, r, c = nnz + B.nnz, r + B.shape[0], c + B.shape[1]
     return sp.csr_matrix((np.concatenate(data), np.concatenate(indices), np.concatenate(indptr)), shape=(r, c))
