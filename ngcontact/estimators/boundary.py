@@ -78,7 +78,14 @@ def residual_multiplier(sv: SolutionView) -> CoefficientFunction:
         f.Set(fd.f, bonus_intorder=dv.quad_bonus + 4)
         num = num + (fd.sign / fd.mu) * (-fd.mu * Trace(fd.u.Operator("hesse")) - f)
         den += 1.0 / fd.mu
-    return num / den
+    if dv.curved:
+        return num / den
+    # straight elements: rho_h is in P_{p-2}(K), held exactly by its elementwise L2 projection (to round-off);
+    # a GridFunction is evaluated without the Hessians of the fields (the shape of :class:`.multipliers.
+    # ShapedContactMultiplier` evaluates it in every estimator integral)
+    rho = GridFunction(Q, name="rho_h")
+    rho.Set(num / den)
+    return rho
 
 
 def vertex_values(dv: DiscretizationView, cf) -> np.ndarray:
