@@ -2,9 +2,9 @@
 
     python -m benchmarks.estimate_speed OUT [--base REV] [--max-ndof 110000]
 
-Runs, one after the other in fresh single-threaded processes (NGSolve, BLAS: one thread each), first the
-package at git revision ``REV`` (default: the merge base of HEAD and ``main``; exported with ``git archive`` to a temporary directory)
-and then this checkout, each doing
+Runs, one after the other in fresh single-threaded processes (NGSolve, BLAS: one thread each), first
+the package at git revision ``REV`` (default: the merge base of HEAD and ``main``; exported with
+``git archive`` to a temporary directory) and then this checkout, each doing
 
 * the adaptive L-shape P3 run of ``make sweep`` (Doerfler theta = 0.5, nested start; ``max_ndof`` smaller
   than the sweep's 200000 to keep the benchmark short): per level ``time_solve_s`` and ``time_estimate_s``

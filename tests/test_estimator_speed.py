@@ -5,7 +5,8 @@
 * the default estimate (candidates sharing their multiplier-independent terms) against the estimate with the
   chosen multiplier alone, component by component;
 * :func:`ngcontact.estimators.boundary.residual_multiplier` on straight elements (a P_{p-2} GridFunction)
-  against its defining expression with the Hessians of the fields.
+  against its defining expression with the Hessians of the fields;
+* eta_F by the exact rule of :func:`ngcontact.estimators.terms.flux_rule_order` against the estimator quadrature.
 """
 import numpy as np
 import pytest
@@ -14,7 +15,9 @@ from ngsolve import L2, GridFunction, Integrate, Trace, dx
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.estimators import EstimatorOptions, estimate
 from ngcontact.estimators.boundary import residual_multiplier
+from ngcontact.estimators.dirichlet import dirichlet_lifting
 from ngcontact.estimators.flux import reconstruct, reconstruct_several
+from ngcontact.estimators.terms import Integrals, corrected_fields, flux_residual, flux_rule_order
 from ngcontact.estimators.view import SolutionView
 from ngcontact.newton.loop import NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
@@ -80,3 +83,25 @@ def test_residual_multiplier_on_straight_elements_is_the_element_residual(lshape
     ref = Integrate(cf ** 2 * dx(bonus_intorder=4), disc.mesh, element_wise=True).NumPy()
     assert ref.sum() > 0.0
     assert np.sqrt(diff.max()) <= 1e-12 * np.sqrt(ref.max())
+
+
+@pytest.mark.parametrize("scene,p", [("lshape", 3), ("disk", 1), ("test1", 2)])
+def test_flux_term_by_the_exact_polynomial_rule(scene, p):
+    """eta_F by the rule of :func:`~ngcontact.estimators.terms.flux_rule_order` (exact for |fl|^2 on straight
+    elements) equals eta_F by the estimator quadrature ``dxq`` to round-off."""
+    sc = load_scene(scene)
+    disc = FEMDiscretization(sc.problem, sc.problem.domain.mesh(0), order=p)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(sc.initial_guess), NewtonOptions())
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    dv, fields = sv.disc, sv.fields
+    q = EstimatorOptions().flux_degree(p)
+    fl = reconstruct(sv, q)
+    ws = dirichlet_lifting(dv, fields, True)[0]
+    ig = Integrals.of(dv, EstimatorOptions())
+    grads = corrected_fields(dv, fields, ws)[1]
+    data = [fd.sign * fl.lam for fd in fields]
+    rule = flux_rule_order(dv, q, any(w is not None for w in ws))
+    assert rule is not None and rule < 2 * (p + 2 + q) + ig.bonus
+    exact = flux_residual(ig, fields, fl.sigma, grads, data, fl_rule=rule)[0]
+    plain = flux_residual(ig, fields, fl.sigma, grads, data)[0]
+    assert np.abs(exact - plain).max() <= 1e-12 * np.abs(plain).max()

@@ -104,8 +104,8 @@ from .dirichlet import dirichlet_lifting
 from .flux import FluxReconstruction, reconstruct, reconstruct_several, vertex_device_exact
 from .nonnegative import QuadratureArrays, concentrated_multiplier
 from .options import EstimatorOptions
-from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, nonconformity,
-                    nonnegative_part)
+from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, flux_rule_order,
+                    nonconformity, nonnegative_part)
 from .view import DiscretizationView, SolutionView
 
 __all__ = ["Estimate", "estimate"]
@@ -345,7 +345,8 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         vals, grads, gap, ggap = shared["fields"]
         nonc1, corr, gcorr, nonc1_K = shared["nonc1"]
         nonc2_seed, theta = shared["seed"], shared["theta"]
-        eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads, [fd.sign * lam for fd in fields])
+        eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads, [fd.sign * lam for fd in fields],
+                                                       fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)))
 
         # multiplier: lam~ >= 0 and eta_nonc,2
         lam_t, nonc2, loc_K = nonnegative_part(ig, lam, flux.lam_order, eta_FR)
