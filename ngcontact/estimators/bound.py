@@ -101,11 +101,11 @@ import numpy as np
 from ngsolve import L2, GridFunction, IfPos, TaskManager
 
 from .dirichlet import dirichlet_lifting
-from .flux import FluxReconstruction, reconstruct, vertex_device_exact
+from .flux import FluxReconstruction, reconstruct, reconstruct_several, vertex_device_exact
 from .nonnegative import QuadratureArrays, concentrated_multiplier
 from .options import EstimatorOptions
-from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, nonconformity,
-                    nonnegative_part)
+from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, flux_rule_order,
+                    nonconformity, nonnegative_part)
 from .view import DiscretizationView, SolutionView
 
 __all__ = ["Estimate", "estimate"]
@@ -289,12 +289,16 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
     pair = None if flux is not None or opts.multiplier is not None else _candidates(sv.disc, q)
     if pair:
         # two admissible multipliers, two guaranteed bounds: keep the smaller (module doc, "Multiplier")
-        both = [_bound(sv, q, opts, reconstruct(sv, q, multiplier=m, batched=opts.batched,
-                                                regularization=opts.regularization,
-                                                boundary=opts.boundary_multiplier)) for m in pair]
+        if opts.batched:  # both in one batched patch solve
+            fluxes = reconstruct_several(sv, q, pair, boundary=opts.boundary_multiplier)
+        else:
+            fluxes = [reconstruct(sv, q, multiplier=m, batched=False, regularization=opts.regularization,
+                                  boundary=opts.boundary_multiplier) for m in pair]
+        shared = {}  # the terms that do not depend on the multiplier, evaluated once for both
+        both = [_bound(sv, q, opts, fl, shared) for fl in fluxes]
         est = min(both, key=lambda e: e.eta)
         est.multiplier = pair[0] if est is both[0] else pair[1]
-        est.time_flux = sum(e.time_flux for e in both)
+        est.time_flux = fluxes[0].time if opts.batched else sum(fl.time for fl in fluxes)
     else:
         if flux is None:
             flux = reconstruct(sv, q, multiplier=opts.multiplier, batched=opts.batched,
@@ -316,8 +320,12 @@ def _candidates(dv: DiscretizationView, q: int) -> Optional[Tuple[str, str]]:
     return ("contact", "shape") if vertex_device_exact(dv, q) else None
 
 
-def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstruction) -> Estimate:
-    """The estimate with the fluxes ``flux`` (module docstring); times and the error are set by the caller."""
+def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstruction,
+           shared: Optional[dict] = None) -> Estimate:
+    """The estimate with the fluxes ``flux`` (module docstring); times and the error are set by the caller.
+    ``shared``: a dict filled by the first call and read by the next ones with the same (sv, opts): the
+    corrected fields and the terms independent of the multiplier (eta_nonc,2 seed, eta_nonc,1, Theta, the gap at the
+    quadrature points of :func:`.nonnegative.concentrated_multiplier`)."""
     dv = sv.disc
     p = dv.order
     fields, lam = flux.fields, flux.lam  # lam: the multiplier of the equilibration, lam^_h
@@ -326,19 +334,29 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         C_om = ig.C_F * ig.C_mu
         # corrected solution u~_h = u_h + w_h (exact Dirichlet trace)
         ws, eta_bc, eps_w, bc_K = dirichlet_lifting(dv, fields, opts.dirichlet_correction)  # cached per disc
-        vals, grads, gap, ggap = corrected_fields(dv, fields, ws)
-        eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads, [fd.sign * lam for fd in fields])
+        if not shared:
+            shared = {} if shared is None else shared
+            vals, grads, gap, ggap = corrected_fields(dv, fields, ws)
+            lam_d = sv.gfs["lam"]  # the discrete (dual-basis for p >= 2) multiplier of the seed
+            shared["seed"] = C_om * math.sqrt(max(float(ig.ew(IfPos(-lam_d, lam_d * lam_d, 0.0)).sum()), 0.0))
+            nonc1, corr, gcorr, nonc1_K = nonconformity(sv, ig, gap, ggap, exact_bc=all(w is None for w in ws))
+            shared.update(fields=(vals, grads, gap, ggap), nonc1=(nonc1, corr, gcorr, nonc1_K),
+                          theta=contact_work(ig, fields, grads, corr, gcorr))
+        vals, grads, gap, ggap = shared["fields"]
+        nonc1, corr, gcorr, nonc1_K = shared["nonc1"]
+        nonc2_seed, theta = shared["seed"], shared["theta"]
+        eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads, [fd.sign * lam for fd in fields],
+                                                       fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)))
 
         # multiplier: lam~ >= 0 and eta_nonc,2
-        lam_d = sv.gfs["lam"]  # the discrete (dual-basis for p >= 2) multiplier of the seed
-        nonc2_seed = C_om * math.sqrt(max(float(ig.ew(IfPos(-lam_d, lam_d * lam_d, 0.0)).sum()), 0.0))
         lam_t, nonc2, loc_K = nonnegative_part(ig, lam, flux.lam_order, eta_FR)
-        nonc1, corr, gcorr, nonc1_K = nonconformity(sv, ig, gap, ggap, exact_bc=all(w is None for w in ws))
-        theta = contact_work(ig, fields, grads, corr, gcorr)
         if opts.concentrates(p):
             # lam~ moved towards the small gaps inside every element (:func:`concentrated_multiplier`)
-            qa = QuadratureArrays(dv.mesh, 2 * p + 6)
-            lam_v, gap_v, corr_v = qa.values(lam_t), qa.values(gap), qa.values(corr)
+            if "qa" not in shared:
+                qa = QuadratureArrays(dv.mesh, 2 * p + 6)
+                shared["qa"] = qa, qa.values(gap), qa.values(corr)
+            qa, gap_v, corr_v = shared["qa"]
+            lam_v = qa.values(lam_t)
             lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + corr_v, ig.h, ig.C_mu,
                                                   eta_FR + eta_quad + nonc2 + 2.0 * nonc1)
             nonc2 += ig.C_mu * math.sqrt(float(loc2.sum()))

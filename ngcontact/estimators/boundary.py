@@ -69,7 +69,8 @@ def contact_band(dv: DiscretizationView, contact: np.ndarray) -> np.ndarray:
 def residual_multiplier(sv: SolutionView) -> CoefficientFunction:
     """rho_h, the elementwise multiplier of the discrete solution (module doc), with f_a replaced by its
     elementwise L2 projection onto P_{p-2}, the degree of Lap u_ah: rho_h in P_{p-2}(K), whose error
-    comes from lam and u - u_h only (not from the variation of f_a)."""
+    comes from lam and u - u_h only (not from the variation of f_a).  On straight elements a GridFunction of
+    L2(P_{p-2}) (exact to round-off), on curved ones the expression with the Hessians of the fields."""
     dv = sv.disc
     Q = L2(dv.mesh, order=max(dv.order - 2, 0))
     num, den = CoefficientFunction(0.0), 0.0
@@ -78,7 +79,14 @@ def residual_multiplier(sv: SolutionView) -> CoefficientFunction:
         f.Set(fd.f, bonus_intorder=dv.quad_bonus + 4)
         num = num + (fd.sign / fd.mu) * (-fd.mu * Trace(fd.u.Operator("hesse")) - f)
         den += 1.0 / fd.mu
-    return num / den
+    if dv.curved:
+        return num / den
+    # straight elements: rho_h is in P_{p-2}(K), held exactly by its elementwise L2 projection (to round-off);
+    # a GridFunction is evaluated without the Hessians of the fields (the shape of :class:`.multipliers.
+    # ShapedContactMultiplier` evaluates it in every estimator integral)
+    rho = GridFunction(Q, name="rho_h")
+    rho.Set(num / den)
+    return rho
 
 
 def vertex_values(dv: DiscretizationView, cf) -> np.ndarray:

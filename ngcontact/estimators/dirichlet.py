@@ -63,11 +63,7 @@ def _element_dofs(space, elements) -> np.ndarray:
 
 
 def _bitarray(mask) -> BitArray:
-    ba = BitArray(len(mask))
-    ba.Clear()
-    for i in np.flatnonzero(mask):
-        ba.Set(int(i))
-    return ba
+    return BitArray(np.asarray(mask, dtype=bool).tolist())
 
 
 def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, layers: Optional[int] = None):

@@ -65,7 +65,7 @@ from .patches import PatchSolver
 from .view import DiscretizationView, FieldData, SolutionView
 
 __all__ = ["FluxReconstruction", "PatchData", "equilibrate", "equilibrate_all", "flux_bonus", "patch_solver",
-           "patch_regularization", "reconstruct", "reconstruct_fluxes", "vertex_device_exact"]
+           "patch_regularization", "reconstruct", "reconstruct_fluxes", "reconstruct_several", "vertex_device_exact"]
 
 
 @dataclass
@@ -390,6 +390,31 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
         reaches the Dirichlet boundary.
     """
     t0 = time.perf_counter()
+    data, lam, lam_order, lam_rule = _equilibration_data(sv, q, multiplier, batched, boundary)
+    sigmas = equilibrate_all(sv.disc.mesh, q, data, regularization=patch_regularization(sv.disc, regularization),
+                             solver=patch_solver(sv.disc, q) if batched else None)
+    return FluxReconstruction(sigma=sigmas, fields=list(sv.fields), lam=lam, order=q, space=sigmas[0].space,
+                              time=time.perf_counter() - t0, lam_order=lam_order, lam_rule=lam_rule)
+
+
+def reconstruct_several(sv: SolutionView, q: int, multipliers, *, boundary: bool = True) -> list:
+    """:func:`reconstruct` (batched) for several multipliers at once: the patch problems of all of them in
+    one batched solve (one condensation and factorization of the patch matrices for all right-hand sides).
+    Each :attr:`FluxReconstruction.time` is the wall time of the whole call."""
+    t0 = time.perf_counter()
+    parts = [_equilibration_data(sv, q, m, True, boundary) for m in multipliers]
+    sigmas = equilibrate_all(sv.disc.mesh, q, [d for part in parts for d in part[0]], solver=patch_solver(sv.disc, q))
+    t = time.perf_counter() - t0
+    out, n = [], len(sv.fields)
+    for j, (_, lam, lam_order, lam_rule) in enumerate(parts):
+        sig = sigmas[j * n:(j + 1) * n]
+        out.append(FluxReconstruction(sigma=sig, fields=list(sv.fields), lam=lam, order=q, space=sig[0].space,
+                                      time=t, lam_order=lam_order, lam_rule=lam_rule))
+    return out
+
+
+def _equilibration_data(sv: SolutionView, q: int, multiplier, batched: bool, boundary: bool):
+    """(list of PatchData, lam^_h, its degree, its rule order) of :func:`reconstruct`."""
     dv = sv.disc
     p = dv.order
     if q < 0 or (p == 1 and q > 2):
@@ -450,8 +475,4 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
                               name=f"sigma_{fd.name}",
                               vertex_values=None if vertex_values is None else
                               [(fd.sign * v, shape) for v, shape in vertex_values]))
-    solver = patch_solver(dv, q) if batched else None
-    sigmas = equilibrate_all(dv.mesh, q, data, regularization=patch_regularization(dv, regularization),
-                             solver=solver)
-    return FluxReconstruction(sigma=sigmas, fields=list(sv.fields), lam=lam, order=q, space=sigmas[0].space,
-                              time=time.perf_counter() - t0, lam_order=lam_order, lam_rule=lam_rule)
+    return data, lam, lam_order, lam_rule

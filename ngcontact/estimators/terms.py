@@ -37,7 +37,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from ngsolve import (BND, L2, SEGM, BilinearForm, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
+from ngsolve import (BND, L2, SEGM, TRIG, BilinearForm, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
                      Integrate, IntegrationRule, LinearForm, VectorL2, div, dx, grad, x, y)
 
 from ..domains import DIRICHLET
@@ -45,9 +45,9 @@ from .nonnegative import nonnegative_multiplier
 from .options import EstimatorOptions
 from .view import DiscretizationView, SolutionView
 
-__all__ = ["Integrals", "element_diameters", "friedrichs_constant", "P0Dual", "flux_residual", "mean_term",
-           "defect_norm", "nonnegative_part", "corrected_fields", "split", "nonconformity", "admissible_correction",
-           "contact_work", "direct_root"]
+__all__ = ["Integrals", "element_diameters", "friedrichs_constant", "P0Dual", "flux_residual", "flux_rule_order",
+           "mean_term", "defect_norm", "nonnegative_part", "corrected_fields", "split", "nonconformity",
+           "admissible_correction", "contact_work", "direct_root"]
 
 J01 = 2.404825557695773  # first zero of the Bessel function J0
 
@@ -115,7 +115,8 @@ class P0Dual:
         self._A = csr_matrix(tuple(np.array(m) for m in a.mat.CSR()), shape=(self.W.ndof, self.W.ndof))
         # SuperLU of the free block (an NGSolve inverse applied inside a TaskManager was ~8x slower here)
         self._free = np.flatnonzero(np.array(list(self.W.FreeDofs()), dtype=bool))
-        self._inv = splu(self._A[self._free][:, self._free].tocsc())
+        # ordering for the symmetric pattern: half the fill of the default COLAMD on these matrices
+        self._inv = splu(self._A[self._free][:, self._free].tocsc(), permc_spec="MMD_AT_PLUS_A")
         self.centroid = GridFunction(VectorL2(mesh, order=0))
         self.centroid.Set(CoefficientFunction((x, y)))
         d = CoefficientFunction((x, y)) - self.centroid
@@ -192,10 +193,12 @@ class Integrals:
         return Integrate(cf * (self.dxq if dxx is None else dxx), self.mesh, element_wise=True).NumPy().copy()
 
 
-def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None):
+def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None, fl_rule=None):
     """eta_F,K,a, eta_R,K,a (arrays (nfields, ne)), eta_FR = (sum_K sum_a (eta_F + eta_R)^2)^{1/2} and
     eta_quad for fluxes with div sigma_a ~ f_a + data_a (module doc).  ``parts``: i -> (||fl||_K^2,
-    ||res||_K^2, element means of res) of field i computed elsewhere (:mod:`.affine_p1`)."""
+    ||res||_K^2, element means of res) of field i computed elsewhere (:mod:`.affine_p1`).  ``fl_rule``: the
+    order of a triangle rule exact for the polynomial |fl|^2 (:func:`flux_rule_order`; None: ``dxq``)."""
+    dfl = None if fl_rule is None else dx(intrules={TRIG: IntegrationRule(TRIG, int(fl_rule))})
     eta_F, eta_R = np.zeros((len(fields), ig.mesh.ne)), np.zeros((len(fields), ig.mesh.ne))
     rbar = []
     for i, (fd, sig, gu, m) in enumerate(zip(fields, sigmas, grads, data)):
@@ -203,7 +206,8 @@ def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None):
         if parts is None:
             fl = math.sqrt(mu) * gu + sig / math.sqrt(mu)
             res = fd.f + m - div(sig)
-            fl2, res2, mean = ig.ew(fl * fl), ig.ew(res * res), ig.ew(res, dx(bonus_intorder=ig.bonus + 8)) / ig.area
+            fl2, res2 = ig.ew(fl * fl, dfl), ig.ew(res * res)
+            mean = ig.ew(res, dx(bonus_intorder=ig.bonus + 8)) / ig.area
         else:
             fl2, res2, mean = parts(i)
         eta_F[i] = np.sqrt(np.maximum(fl2, 0.0))                                           # eta_F,K,alpha
@@ -211,6 +215,15 @@ def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None):
         rbar.append(mean)
     eta_FR = float(np.sqrt(((eta_F + eta_R) ** 2).sum()))
     return eta_F, eta_R, eta_FR, mean_term(ig, rbar, [fd.mu for fd in fields], eta_FR)
+
+
+def flux_rule_order(dv: DiscretizationView, q: int, corrected: bool):
+    """Degree of |fl|^2, fl = mu^{1/2} grad u~_h + mu^{-1/2} sigma_h, on straight elements: grad u~_h in
+    P_{k-1} (k = p, or p + 2 with the Dirichlet lifting w_h, ``corrected``), sigma_h in RT_q, a subspace of
+    P_{q+1}; None on curved elements (not polynomial there)."""
+    if dv.curved:
+        return None
+    return 2 * max((dv.order + 2 if corrected else dv.order) - 1, q + 1)
 
 
 def mean_term(ig: Integrals, rbar, mus, eta_FR, negligible: float = 1e-3) -> float:
