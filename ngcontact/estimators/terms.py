@@ -115,8 +115,7 @@ class P0Dual:
         self._A = csr_matrix(tuple(np.array(m) for m in a.mat.CSR()), shape=(self.W.ndof, self.W.ndof))
         # SuperLU of the free block (an NGSolve inverse applied inside a TaskManager was ~8x slower here)
         self._free = np.flatnonzero(np.array(list(self.W.FreeDofs()), dtype=bool))
-        # ordering for the symmetric pattern: half the fill of the default COLAMD on these matrices
-        self._inv = splu(self._A[self._free][:, self._free].tocsc(), permc_spec="MMD_AT_PLUS_A")
+        self._inv = splu(self._A[self._free][:, self._free].tocsc())
         self.centroid = GridFunction(VectorL2(mesh, order=0))
         self.centroid.Set(CoefficientFunction((x, y)))
         d = CoefficientFunction((x, y)) - self.centroid
