@@ -173,14 +173,16 @@ class LagrangeNodes:
     def ndof(self) -> int:
         return self.V.shape[0]
 
+    def _mesh_points(self, where: np.ndarray = None) -> np.ndarray:
+        """MeshPoints of every node, or of the nodes ``where``."""
+        if self._points is not None:
+            return self._points if where is None else self._points[where]
+        e_of, j_of = self.rep if where is None else (self.rep[0][where], self.rep[1][where])
+        return meshpoints(self._mesh, e_of, self._ref[j_of, 0], self._ref[j_of, 1])
+
     def evaluate(self, cf, where: np.ndarray = None) -> np.ndarray:
         """Values of a scalar CoefficientFunction at every node (vectorized), or at the nodes ``where``."""
-        if self._points is not None:
-            pts = self._points if where is None else self._points[where]
-        else:
-            e_of, j_of = self.rep if where is None else (self.rep[0][where], self.rep[1][where])
-            pts = meshpoints(self._mesh, e_of, self._ref[j_of, 0], self._ref[j_of, 1])
-        return np.asarray(cf(pts)).reshape(-1)
+        return np.asarray(cf(self._mesh_points(where))).reshape(-1)
 
     def evaluate_many(self, cfs) -> np.ndarray:
         """Values of scalar CoefficientFunctions at every node, (len(cfs), ndof): one compiled vector-valued
@@ -189,15 +191,8 @@ class LagrangeNodes:
         cfs = list(cfs)
         if len(cfs) == 1:
             return self.evaluate(cfs[0].Compile())[None, :]
-        return self.evaluate_vector(CoefficientFunction(tuple(cfs)).Compile(), len(cfs))
-
-    def evaluate_vector(self, cf, k: int) -> np.ndarray:
-        """Values of a ``k``-vector CoefficientFunction at every node, (k, ndof)."""
-        if self._points is not None:
-            pts = self._points
-        else:
-            pts = meshpoints(self._mesh, self.rep[0], self._ref[self.rep[1], 0], self._ref[self.rep[1], 1])
-        return np.asarray(cf(pts)).reshape(-1, k).T.copy()
+        vector = CoefficientFunction(tuple(cfs)).Compile()
+        return np.asarray(vector(self._mesh_points())).reshape(-1, len(cfs)).T.copy()
 
     def from_values(self, values: np.ndarray) -> np.ndarray:
         """Coefficients in this basis of the interpolant with the given values at the nodes (the values)."""
