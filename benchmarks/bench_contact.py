@@ -16,7 +16,11 @@ Columns (one row per finest level N of a nested run from the coarsest mesh):
   t_total_s    whole nested run up to that level (meshes, assembly, prolongation, Newton, errors)
   t_solve_s    contact solve: t_total minus the finest level's mesh + assembly and minus all
                error evaluations (what an unconstrained solve on the same matrix needs too is excluded)
-  t_run_s      whole nested run up to that level without the exact-error evaluations
+  t_run_s      whole nested run up to that level without the exact-error evaluations.  The levels of these
+               structured squares are arrays (domains.ArrayMesh): P1 builds its system from them, and a
+               level's NGSolve mesh and H1 space are built by the first thing that needs them -- here the exact
+               errors (Integrate), so they are part of the error evaluation, not of t_run (ex9: f = 0; test1's
+               loads are assembled by NGSolve, which builds them during its set-up)
   t_linear_s   one unconstrained solve K x = F of the finest level, sparse Cholesky (factor + solve)
   ratio        t_solve_s / t_linear_s
   t_linear_fast_s, ratio_fast  one unconstrained solve with the fastest solver of the package: CG +

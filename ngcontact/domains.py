@@ -9,7 +9,9 @@ whole boundary; an internal curve named ``interface`` (mesh lines fitted to a
 data discontinuity, e.g. ``UnitDisk(interface_radius=...)``) is not part of it.
 
 Structured squares are built level by level with numpy and netgen's
-vectorized ``AddPoints`` / ``AddElements``; domains given by a netgen
+vectorized ``AddPoints`` / ``AddElements`` (or, for callers that accept them,
+yielded as :class:`ArrayMesh` levels whose NGSolve mesh is built on first use);
+domains given by a netgen
 geometry (or a ``.vol`` file) are refined by ``netgen.meshing.Mesh.Refine``,
 which splits every triangle 1 -> 4 and projects new boundary points onto the
 geometry.
@@ -28,7 +30,7 @@ import numpy as np
 import ngsolve
 from netgen.geom2d import SplineGeometry
 
-__all__ = ["DIRICHLET", "Domain", "CrissCrossSquare", "StructuredSquare", "GeometryDomain",
+__all__ = ["DIRICHLET", "Domain", "ArrayMesh", "CrissCrossSquare", "StructuredSquare", "GeometryDomain",
            "UnitDisk", "LShape", "MeshFileDomain", "MeshDomain", "as_domain", "check_triangular", "mesh_size"]
 
 _SIDES = ("bottom", "right", "top", "left")
@@ -116,11 +118,12 @@ class Domain:
         level = _check_level(level)
         return ngsolve.Mesh(next(self._ngmeshes(level, level + 1)))
 
-    def meshes(self, levels: int) -> Iterator[ngsolve.Mesh]:
+    def meshes(self, levels: int, arrays: bool = False) -> Iterator[ngsolve.Mesh]:
         """Yield T_0, ..., T_{levels-1}, refining incrementally.
 
         The yielded meshes are independent objects: refining or curving one
-        does not affect the others.
+        does not affect the others.  ``arrays``: the caller also accepts :class:`ArrayMesh`
+        levels (structured rectangles yield them; other domains yield NGSolve meshes anyway).
         """
         for ngmesh in self._ngmeshes(0, _check_level(levels, "levels")):
             yield ngsolve.Mesh(ngmesh)
@@ -189,6 +192,97 @@ def _to_ngmesh(X, T, S, tag) -> ngm.Mesh:
     return mesh
 
 
+class _CoarseLocator:
+    """Where the vertices of finer levels lie in the coarsest mesh T_0 of a hierarchy of straight-sided
+    meshes: (element of T_0, NGSolve reference coordinates), for MeshPoints on T_0 (:meth:`ArrayMesh.vertex_location`)."""
+
+    def __init__(self, X0: np.ndarray, T0: np.ndarray, S0, tag0):
+        self.mesh = ngsolve.Mesh(_to_ngmesh(X0, T0, S0, tag0))
+        self.X0, self.T0 = np.asarray(X0, dtype=float), np.asarray(T0, dtype=np.int64)
+        # NGSolve's reference triangle has the vertices (1,0), (0,1), (0,0): the local coordinates of p in element
+        # (A, B, C) are the first two barycentric coordinates, [A - C, B - C]^-1 (p - C); per element: C, the inverse
+        A, B, C = self.X0[self.T0].transpose(1, 0, 2)
+        (ax, ay), (bx, by) = (A - C).T, (B - C).T
+        det = ax * by - ay * bx
+        self._affine = (C[:, 0].copy(), C[:, 1].copy(), by / det, -bx / det, -ay / det, ax / det)
+
+    def locate(self, pts: np.ndarray):
+        """(elements (n,), reference coordinates (n, 2)) of the points ``pts`` (n, 2) of the domain."""
+        import matplotlib.tri as mtri
+
+        px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+        el = np.asarray(mtri.Triangulation(self.X0[:, 0], self.X0[:, 1], self.T0).get_trifinder()(px, py),
+                        dtype=np.int64)
+        if len(el) and el.min() < 0:
+            raise ValueError("a vertex of a finer level lies outside the coarsest mesh")
+        cx, cy, i00, i01, i10, i11 = (a[el] for a in self._affine)
+        rx, ry = px - cx, py - cy
+        return el, np.stack([i00 * rx + i01 * ry, i10 * rx + i11 * ry], axis=1)
+
+
+class ArrayMesh:
+    """One level T_j of a structured rectangle held as its arrays; the NGSolve mesh is built on first
+    :meth:`build`.
+
+    What conforming P1 needs for its algebraic system is in the arrays: the stiffness from the triangles,
+    the Dirichlet vertices from the boundary segments, the nested prolongation from ``ngc_parents``; data that
+    depend on the coordinates only are evaluated at the vertices on MeshPoints of the coarsest mesh T_0
+    (:meth:`vertex_location`: one element switch per coarse element instead of one per vertex).  The NGSolve mesh
+    (errors, GridFunctions, VTK, estimators) is built only when something asks for it; it is the mesh that
+    :meth:`Domain.meshes` yields for this level (same vertices, triangles, segments and ``ngc_parents``).
+    """
+
+    def __init__(self, X, T, S, tag, parents, coarse: Optional[_CoarseLocator] = None):
+        self.X, self.T, self.S, self.tag = X, T, S, tag
+        self.ngc_parents = parents
+        self._coarse = coarse
+        self._mesh = None
+        self._points = None
+
+    @property
+    def nv(self) -> int:
+        return len(self.X)
+
+    @property
+    def ne(self) -> int:
+        return len(self.T)
+
+    def locator(self) -> _CoarseLocator:
+        """The locator of this mesh taken as the coarsest level (T_0 of the hierarchy)."""
+        if self._coarse is None:
+            self._coarse = _CoarseLocator(self.X, self.T, self.S, self.tag)
+        return self._coarse
+
+    def build(self) -> ngsolve.Mesh:
+        """The NGSolve mesh of this level (built once)."""
+        if self._mesh is None:
+            self._mesh = ngsolve.Mesh(_to_ngmesh(self.X, self.T, self.S, self.tag))
+            self._mesh.ngc_parents = self.ngc_parents
+        return self._mesh
+
+    def dirichlet_vertices(self) -> np.ndarray:
+        """Boolean mask of the vertices on the boundary segments whose name matches :data:`DIRICHLET`
+        (what ``H1(mesh, order=1, dirichlet=DIRICHLET)`` fixes)."""
+        import re
+
+        bnd = np.zeros(self.nv, dtype=bool)
+        for k, side in enumerate(_SIDES):
+            if re.fullmatch(DIRICHLET, side):
+                bnd[self.S[self.tag == k].ravel()] = True
+        return bnd
+
+    def vertex_location(self, where: Optional[np.ndarray] = None):
+        """(T_0 as NGSolve mesh, elements, xi, eta): where the vertices (or the vertices ``where``) lie in the
+        coarsest mesh T_0, for MeshPoints there (``discretizations.lagrange.meshpoints``) at which
+        CoefficientFunctions of the coordinates only are evaluated (a GridFunction of this level must not be)."""
+        if self._points is None:
+            self._points = self.locator().locate(np.asarray(self.X, dtype=float))
+        el, ref = self._points
+        if where is not None:
+            el, ref = el[where], ref[where]
+        return self._coarse.mesh, el, ref[:, 0], ref[:, 1]
+
+
 class _BoxDomain(Domain):
     """Rectangle [xmin, xmax] x [ymin, ymax] built from numpy arrays."""
 
@@ -238,18 +332,27 @@ class _BoxDomain(Domain):
             box.clear()
             yield ngmesh
 
-    def meshes(self, levels: int) -> Iterator[ngsolve.Mesh]:
+    def meshes(self, levels: int, arrays: bool = False) -> Iterator[ngsolve.Mesh]:
         """Yield T_0, ..., T_{levels-1} (independent objects, see :meth:`Domain.meshes`).
 
         T_j (j >= 1) carries ``ngc_parents``: an (nv_j, 2) integer array, vertex v of T_j being the
         midpoint of vertices ngc_parents[v] of T_{j-1} (a repeated index: v is that coarse vertex).
         Nested P1 prolongation reads it instead of matching coordinates
         (``discretizations.fem._parent_p1_values``; it still checks the coordinates).
+        ``arrays``: yield :class:`ArrayMesh` levels (their NGSolve mesh is built on first use).
         """
+        coarse = None
         for box in self._levels(0, _check_level(levels, "levels")):
-            mesh = ngsolve.Mesh(_to_ngmesh(*box.pop(0)))
-            mesh.ngc_parents = box.pop()
-            yield mesh
+            (X, T, S, tag), parents = box.pop(0), box.pop()
+            if not arrays:
+                mesh = ngsolve.Mesh(_to_ngmesh(X, T, S, tag))
+                mesh.ngc_parents = parents
+                yield mesh
+                continue
+            level = ArrayMesh(X, T, S, tag, parents, coarse)
+            coarse = coarse or level.locator()
+            X = T = S = tag = None
+            yield level
 
     def h(self, level: int = 0) -> float:
         """Nominal mesh size: side of the squares of T_level (longest side if a rectangle)."""

@@ -8,6 +8,7 @@ attributes and methods documented here and never probe with ``hasattr``.
 """
 from __future__ import annotations
 
+import re
 from abc import ABC, abstractmethod
 from typing import Optional, Tuple
 
@@ -15,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import LinearForm, TaskManager
 
-__all__ = ["Discretization", "scipy_csr", "assemble_load", "evaluate_at_points"]
+__all__ = ["Discretization", "scipy_csr", "assemble_load", "evaluate_at_points", "coordinate_only"]
 
 
 class Discretization(ABC):
@@ -29,6 +30,9 @@ class Discretization(ABC):
         supported polynomial orders.
     estimable : bool
         a posteriori estimators (:mod:`ngcontact.estimators`) exist for it (FEM only).
+    array_meshes : bool
+        the constructor takes an :class:`~ngcontact.domains.ArrayMesh` as well (FEM: P1 builds its system from
+        the arrays, the NGSolve mesh on first use of ``mesh``).
 
     Attributes set by the constructor
     ---------------------------------
@@ -57,6 +61,8 @@ class Discretization(ABC):
     estimable: bool = False
     ndof_sc: Optional[int] = None
     time_condense: Optional[float] = None
+    #: the constructor also takes a :class:`~ngcontact.domains.ArrayMesh` (structured rectangles) in place of the mesh
+    array_meshes: bool = False
 
     problem: object
     mesh: object
@@ -64,6 +70,11 @@ class Discretization(ABC):
     nfields: int
     system: object
     time_assembly: float
+
+    @property
+    def nelem(self) -> int:
+        """Number of elements of the mesh."""
+        return self.mesh.ne
 
     @property
     @abstractmethod
@@ -118,6 +129,24 @@ def scipy_csr(bf_or_mat) -> sp.csr_matrix:
     mat = getattr(bf_or_mat, "mat", bf_or_mat)
     data, indices, indptr = mat.CSR()  # views: copy before the form goes away
     return sp.csr_matrix((np.array(data), np.array(indices), np.array(indptr)), shape=(mat.height, mat.width))
+
+
+#: node types of a CoefficientFunction tree (its ``str``) whose value at a point depends on the coordinates
+#: only: constants, x/y/z, arithmetic and elementary functions, IfPos, parameters, vectors and norms of them
+_POINTWISE = re.compile(r"coordinate [xyz]$|binary operation|unary operation|scale|-?[0-9.]|ZeroC"
+                        r"|.*IfPos|.*Parameter|.*Constant|VectorialCoefficientFunction|.*Norm")
+
+
+def coordinate_only(cf) -> bool:
+    """Whether the scalar CoefficientFunction ``cf`` is built from the coordinates by pointwise operations only
+    (no GridFunction, normal vector, mesh size, domain-wise values...), judged from the node types of its tree;
+    an unknown node type counts as not.  Such a function can be evaluated on MeshPoints of any mesh that
+    contains the point."""
+    text = str(cf)
+    if text.strip() == "ZeroCoefficientFunction":
+        return True
+    nodes = re.findall(r"coef ([^,\n]*)", text)
+    return bool(nodes) and all(_POINTWISE.match(n.strip()) for n in nodes)
 
 
 def assemble_load(fes, integrand, compiled=None) -> np.ndarray:

@@ -32,9 +32,9 @@ from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integr
 from ..algebra.multigrid import field_prolongation, p1_prolongation
 from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
-from ..domains import DIRICHLET
+from ..domains import DIRICHLET, ArrayMesh
 from ..problems.base import check_data_on_points
-from .base import Discretization, assemble_load, evaluate_at_points, scipy_csr
+from .base import Discretization, assemble_load, coordinate_only, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
 from .lagrange import LagrangeNodes, meshpoints
 from .nodesets import constraint_node_set
@@ -66,7 +66,12 @@ class FEMDiscretization(Discretization):
     Parameters
     ----------
     problem : TwoMembraneProblem or ObstacleProblem
-    mesh : ngsolve.Mesh
+    mesh : ngsolve.Mesh or ArrayMesh
+        an :class:`~ngcontact.domains.ArrayMesh` (a level of a structured rectangle as arrays) stays arrays
+        for P1 with data that are functions of the coordinates only (:func:`~.base.coordinate_only`): the
+        system is built from the arrays, the data evaluated at the vertices on the coarsest mesh of the
+        hierarchy, and :attr:`mesh` and :attr:`fes` are built on first use (errors, GridFunctions, VTK,
+        estimators, a nonzero load); otherwise its NGSolve mesh is built at once.
     order : int, 1..4
     solver : str
         sparse SPD solver of the Newton steps ('sparsecholesky' or 'scipy').
@@ -83,6 +88,7 @@ class FEMDiscretization(Discretization):
     name = "fem"
     orders = (1, 2, 3, 4)
     estimable = True
+    array_meshes = True
 
     def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6,
                  constraints: str = "nodal"):
@@ -91,22 +97,34 @@ class FEMDiscretization(Discretization):
         node_set = constraint_node_set(constraints)
         self.constraints = constraints
         t0 = time.perf_counter()
-        self.problem, self.mesh, self.order, self.quad_bonus = problem, mesh, order, quad_bonus
+        self.problem, self.order, self.quad_bonus = problem, order, quad_bonus
         self._mass = self._mass_lu = None  # nodal mass matrix and its LU factors, built on first use
-        if getattr(problem.domain, "curved", False) and order > 1:
-            mesh.Curve(order)
-        self.fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
-        # P1 on straight triangles: numpy set-up from the vertex arrays (discretizations.p1), same matrices
-        tables = p1_tables(mesh, fes) if constraints != "bernstein" else None
-        bnd = dirichlet_vertices(mesh, DIRICHLET, fes) if tables is not None else None
-        if bnd is None:
-            tables = None
-            self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" \
-                else LagrangeNodes.build(fes, node_set)
-            free = np.array(list(fes.FreeDofs()), dtype=bool)
-        else:
-            self.nodes = nodes = LagrangeNodes.from_p1_tables(fes, *tables)
+        # an ArrayMesh stays arrays while P1 needs nothing else (class docstring)
+        arrays = mesh if isinstance(mesh, ArrayMesh) else None
+        if arrays is not None and not (order == 1 and constraints != "bernstein"
+                                       and all(map(coordinate_only, problem.data().values()))):
+            mesh, arrays = arrays.build(), None
+        self._arrays, self._mesh, self._fes = arrays, (None if arrays is not None else mesh), None
+        if arrays is not None:
+            tables = (np.asarray(arrays.X, dtype=float), arrays.T.astype(np.int32 if arrays.nv < 2 ** 31 else np.int64))
+            bnd = arrays.dirichlet_vertices()
+            self.nodes = nodes = LagrangeNodes.from_arrays(*tables, lambda where: meshpoints(*arrays.vertex_location(where)))
             free = ~bnd
+        else:
+            if getattr(problem.domain, "curved", False) and order > 1:
+                mesh.Curve(order)
+            self._fes = fes = H1(mesh, order=order, dirichlet=DIRICHLET)
+            # P1 on straight triangles: numpy set-up from the vertex arrays (discretizations.p1), same matrices
+            tables = p1_tables(mesh, fes) if constraints != "bernstein" else None
+            bnd = dirichlet_vertices(mesh, DIRICHLET, fes) if tables is not None else None
+            if bnd is None:
+                tables = None
+                self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" \
+                    else LagrangeNodes.build(fes, node_set)
+                free = np.array(list(fes.FreeDofs()), dtype=bool)
+            else:
+                self.nodes = nodes = LagrangeNodes.from_p1_tables(fes, *tables)
+                free = ~bnd
         self.interior = np.flatnonzero(free)
         self.boundary = np.flatnonzero(~free)
         ni = len(self.interior)
@@ -117,8 +135,8 @@ class FEMDiscretization(Discretization):
         check_data_on_points(problem, data, ~free, nodes.coords)
         coef = {name: nodes.from_values(v) for name, v in data.items()}  # coefficients of the interpolants
 
-        u, v = fes.TnT()
         if tables is None:
+            u, v = fes.TnT()
             with TaskManager():
                 S = BilinearForm(grad(u) * grad(v) * dx).Assemble()
                 ones = LinearForm(v * dx).Assemble()
@@ -135,8 +153,8 @@ class FEMDiscretization(Discretization):
         self.lift = []  # nodal Dirichlet values of each field (zero inside)
         F = []
         for mu, f, gname in zip(problem.mus, problem.loads, problem.dirichlet_names):
-            Fn = nodes.T.T @ self._load(f, v)
-            gb = np.zeros(fes.ndof)
+            Fn = nodes.T.T @ self.load_vector(f)
+            gb = np.zeros(nodes.ndof)
             gb[self.boundary] = coef[gname][self.boundary]
             self.lift.append(gb)
             F.append(Fn[self.interior] - mu * (S @ gb)[self.interior])  # S_ib g_b: gb is zero inside
@@ -151,11 +169,48 @@ class FEMDiscretization(Discretization):
                                              stiffness_scale=problem.stiffness_scale)
         self.time_assembly = time.perf_counter() - t0
 
-    def _load(self, f, v) -> np.ndarray:
+    def load_vector(self, f) -> np.ndarray:
         """(f, phi_i) for the hierarchical basis; zero for an identically zero f.  Assembled with f compiled: the
-        same vector (bitwise), faster."""
+        same vector (bitwise), faster.  (A nonzero load on an ArrayMesh builds its NGSolve mesh here.)"""
+        if self._arrays is not None and isinstance(f, CoefficientFunction) and str(f) == "ZeroCoefficientFunction":
+            return np.zeros(self.nodes.ndof)
+        v = self.fes.TestFunction()
         return assemble_load(self.fes, lambda: f * v * dx(bonus_intorder=self.quad_bonus),
                              lambda: f.Compile() * v * dx(bonus_intorder=self.quad_bonus))
+
+    # ------------------------------------------------------------------ mesh and space
+    @property
+    def mesh(self):
+        """The NGSolve mesh (of an ArrayMesh: built on first use, and the nodes evaluate on it from then on)."""
+        if self._mesh is None:
+            self._mesh = self._arrays.build()
+            self.nodes.attach(self._mesh)
+        return self._mesh
+
+    @property
+    def fes(self):
+        """``H1(mesh, order, dirichlet=DIRICHLET)`` (of an ArrayMesh: built on first use, checked against the
+        Dirichlet vertices of the arrays)."""
+        if self._fes is None:
+            fes = H1(self.mesh, order=self.order, dirichlet=DIRICHLET)
+            if fes.ndof != self.nodes.ndof or fes.FreeDofs().NumSet() != self.n_interior:
+                raise RuntimeError(f"the P1 space of the built mesh ({fes.ndof} dofs, {fes.FreeDofs().NumSet()} free) "
+                                   f"does not match the arrays ({self.nodes.ndof}, {self.n_interior})")
+            self._fes = fes
+        return self._fes
+
+    @property
+    def nelem(self) -> int:
+        return self._arrays.ne if self._mesh is None else self._mesh.ne
+
+    @property
+    def nvert(self) -> int:
+        return self._arrays.nv if self._mesh is None else self._mesh.nv
+
+    @property
+    def parents(self):
+        """The parent table ``ngc_parents`` of structured nested meshes (domains), or None."""
+        return getattr(self._arrays if self._mesh is None else self._mesh, "ngc_parents", None)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -179,6 +234,8 @@ class FEMDiscretization(Discretization):
         x0 = np.zeros(self.nfields * ni)
         for a, cf in enumerate(fields or ()):
             if cf is not None:
+                if not coordinate_only(CoefficientFunction(cf)):
+                    self.mesh  # noqa: B018 -- the nodes evaluate on this level's own mesh from now on
                 x0[a * ni:(a + 1) * ni] = self.nodes.from_values(self.nodes.evaluate(CoefficientFunction(cf)))[self.interior]
         return x0, np.zeros(ni)
 
@@ -221,7 +278,7 @@ class FEMDiscretization(Discretization):
             return None
         if _parent_pairs(previous, self) is None:
             return None
-        P = p1_prolongation(self.mesh.ngc_parents, self.interior, previous.interior, previous.fes.ndof)
+        P = p1_prolongation(self.parents, self.interior, previous.interior, previous.nodes.ndof)
         return field_prolongation(P, len(self.problem.field_names))
 
     # ------------------------------------------------------------ postprocess
@@ -240,7 +297,7 @@ class FEMDiscretization(Discretization):
             X = self.lift[a].copy()
             X[self.interior] = x[a * ni:(a + 1) * ni]
             out[name] = X
-        rhs = np.zeros(self.fes.ndof)
+        rhs = np.zeros(self.nodes.ndof)
         rhs[self.interior] = y
         if self.order == 1:
             out["lam"] = rhs  # lam_h(a) = X3_a, zero on the boundary
@@ -326,9 +383,9 @@ def _parent_pairs(previous, fine):
 
 
 def _check_parent_pairs(previous, fine):
-    par = getattr(fine.mesh, "ngc_parents", None)
-    if par is None or fine.fes.ndof != fine.mesh.nv or previous.fes.ndof != previous.mesh.nv \
-            or par.shape != (fine.mesh.nv, 2) or par.max(initial=0) >= previous.mesh.nv:
+    par = fine.parents
+    if par is None or fine.nodes.ndof != fine.nvert or previous.nodes.ndof != previous.nvert \
+            or par.shape != (fine.nvert, 2) or par.max(initial=0) >= previous.nvert:
         return None
     a, b = par[fine.interior, 0], par[fine.interior, 1]
     P = previous.nodes.coords

@@ -69,6 +69,9 @@ class LagrangeNodes:
     rep: tuple = None
     _mesh: object = None  # with _points None: the MeshPoints are made on each evaluation (P1: not kept)
     _ref: np.ndarray = None  # reference coordinates of the lattice points (node j_of of element e_of)
+    # P1 on an ArrayMesh before its NGSolve mesh exists: MeshPoints of the nodes elsewhere (where -> MeshPoints,
+    # domains.ArrayMesh.vertex_location), for data of the coordinates only; None once the mesh is attached
+    _points_of: object = None
 
     @classmethod
     def from_p1_tables(cls, fes, X: np.ndarray, T: np.ndarray) -> "LagrangeNodes":
@@ -77,7 +80,21 @@ class LagrangeNodes:
         MeshPoints as :meth:`build`, with the netgen vertices as coordinates (:meth:`build` maps the reference
         vertices, which can round differently by 1e-17), and without keeping the MeshPoints (they are made
         on each :meth:`evaluate`)."""
-        ndof = fes.ndof
+        return cls._p1(fes.ndof, X, T, mesh=fes.mesh)
+
+    @classmethod
+    def from_arrays(cls, X: np.ndarray, T: np.ndarray, points_of) -> "LagrangeNodes":
+        """The nodes of P1 on the vertex arrays (X, T) of an :class:`~ngcontact.domains.ArrayMesh` before its
+        NGSolve mesh exists (the nodes of :meth:`from_p1_tables` on that mesh); :meth:`evaluate` uses the
+        MeshPoints ``points_of(where)`` until :meth:`attach` gives the mesh."""
+        return cls._p1(len(X), X, T, points_of=points_of)
+
+    def attach(self, mesh) -> None:
+        """Evaluate on ``mesh`` (the NGSolve mesh of the arrays of :meth:`from_arrays`) from now on."""
+        self._mesh, self._points_of = mesh, None
+
+    @classmethod
+    def _p1(cls, ndof: int, X, T, mesh=None, points_of=None) -> "LagrangeNodes":
         lat = lattice(1)
         perm = [int(np.flatnonzero(b)[0]) for b in lat]  # local vertex of lattice point j
         node = T[:, ::-1] if perm == [2, 1, 0] else T[:, perm]  # a view for NGSolve's lattice order
@@ -87,7 +104,8 @@ class LagrangeNodes:
             raise ValueError(f"found {int((first >= 0).sum())} Lagrange nodes for {ndof} H1 dofs")
         V = sp.identity(ndof, format="csr")
         return cls(V=V, T=V, coords=X, level=np.zeros(ndof, dtype=np.int8), elem_dofs=T, elem_nodes=node,
-                   rep=tuple(np.divmod(first, 3)), _mesh=fes.mesh, _ref=reference_nodes(1, "positive"))
+                   rep=tuple(np.divmod(first, 3)), _mesh=mesh, _ref=reference_nodes(1, "positive"),
+                   _points_of=points_of)
 
     @classmethod
     def build(cls, fes, node_set: str = "positive") -> "LagrangeNodes":
@@ -177,6 +195,8 @@ class LagrangeNodes:
         """MeshPoints of every node, or of the nodes ``where``."""
         if self._points is not None:
             return self._points if where is None else self._points[where]
+        if self._points_of is not None:
+            return self._points_of(where)
         e_of, j_of = self.rep if where is None else (self.rep[0][where], self.rep[1][where])
         return meshpoints(self._mesh, e_of, self._ref[j_of, 0], self._ref[j_of, 1])
 

@@ -167,7 +167,7 @@ def level_row(level: int, out: LevelOutcome, options, *, h: float, head: dict = 
     disc, sol = out.disc, out.sol
     est_cols = out.estimate.summary() if out.estimate is not None else {}
     times = dict(times or {})
-    row = {"level": level, "nelem": disc.mesh.ne, "h": h, "ndof": disc.ndof,
+    row = {"level": level, "nelem": disc.nelem, "h": h, "ndof": disc.ndof,
            **({"ndof_sc": disc.ndof_sc} if disc.ndof_sc is not None else {}),
            "nodes": disc.n_interior, **(head or {}), **out.errors,
            "newton_its": sol.iterations, "newton_converged": int(sol.converged), "res_final": sol.history[-1].res,

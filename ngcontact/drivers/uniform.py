@@ -11,6 +11,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from ..discretizations import DISCRETIZATIONS
 from .level import RunResult, iteration_callback, level_row, record_level, solve_level, status, update_rates
 from .resources import next_level_ndof
 
@@ -27,7 +28,8 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
     problem = scene.problem
     result = RunResult(scene=scene, options=options)
     previous, t_cum = None, 0.0
-    meshes = problem.domain.meshes(options.levels)
+    # P1 FEM on structured rectangles: levels as arrays, NGSolve meshes only where something asks (domains.ArrayMesh)
+    meshes = problem.domain.meshes(options.levels, arrays=DISCRETIZATIONS[options.disc].array_meshes)
     for level in range(options.levels):
         if level > 0 and options.max_ndof is not None:
             ndof = next_level_ndof(result.rows)

@@ -98,8 +98,7 @@ class BackwardEuler:
     def _loads(self) -> np.ndarray:
         """(f_a(t), phi_l) at the interior nodes for the current value of the time parameter."""
         disc = self.disc
-        v = disc.fes.TestFunction()
-        return np.concatenate([(disc.nodes.T.T @ disc._load(f, v))[disc.interior] for f in disc.problem.loads])
+        return np.concatenate([(disc.nodes.T.T @ disc.load_vector(f))[disc.interior] for f in disc.problem.loads])
 
     def load(self, t: float) -> np.ndarray:
         """F(t) of the stationary system (loads + Dirichlet part)."""
