@@ -349,6 +349,8 @@ class _BoxDomain(Domain):
                 mesh.ngc_parents = parents
                 yield mesh
                 continue
+            if len(X) < np.iinfo(np.int32).max:  # the index type of the P1 tables and of netgen's elements
+                T = T.astype(np.int32)
             level = ArrayMesh(X, T, S, tag, parents, coarse)
             coarse = coarse or level.locator()
             X = T = S = tag = None

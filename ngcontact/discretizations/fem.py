@@ -106,7 +106,7 @@ class FEMDiscretization(Discretization):
             mesh, arrays = arrays.build(), None
         self._arrays, self._mesh, self._fes = arrays, (None if arrays is not None else mesh), None
         if arrays is not None:
-            tables = (np.asarray(arrays.X, dtype=float), arrays.T.astype(np.int32 if arrays.nv < 2 ** 31 else np.int64))
+            tables = (np.asarray(arrays.X, dtype=float), arrays.T)  # T: int32 below 2^31 vertices (as p1_tables)
             bnd = arrays.dirichlet_vertices()
             self.nodes = nodes = LagrangeNodes.from_arrays(*tables, lambda where: meshpoints(*arrays.vertex_location(where)))
             free = ~bnd
