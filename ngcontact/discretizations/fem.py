@@ -334,9 +334,11 @@ class FEMDiscretization(Discretization):
         order = 2 * self.order + self.quad_bonus
         for a, (name, mu) in enumerate(zip(self.problem.field_names, self.problem.mus)):
             d = ex.gradient(a + 1) - grad(gfs[name])
-            # compiled integrands: the same values (bitwise), evaluated faster
-            e2 += mu * Integrate(InnerProduct(d, d).Compile(), self.mesh, order=order)
-            exact_nodal = self.nodes.evaluate((ex.u1 if a == 0 else ex.u2).Compile())
+            # compiled integrands: the same values (bitwise), evaluated faster; threaded (per-thread partial sums:
+            # the sum may differ in its last bit)
+            with TaskManager():
+                e2 += mu * Integrate(InnerProduct(d, d).Compile(), self.mesh, order=order)
+                exact_nodal = self.nodes.evaluate((ex.u1 if a == 0 else ex.u2).Compile())
             emax = max(emax, float(np.max(np.abs(exact_nodal - self.nodes.to_values(nodal[name])))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
