@@ -194,7 +194,8 @@ def _to_ngmesh(X, T, S, tag) -> ngm.Mesh:
 
 class _CoarseLocator:
     """Where the vertices of finer levels lie in the coarsest mesh T_0 of a hierarchy of straight-sided
-    meshes: (element of T_0, NGSolve reference coordinates), for MeshPoints on T_0 (:meth:`ArrayMesh.vertex_location`)."""
+    meshes: (element of T_0, NGSolve reference coordinates), for MeshPoints on T_0
+    (:meth:`ArrayMesh.vertex_location`)."""
 
     def __init__(self, X0: np.ndarray, T0: np.ndarray, S0, tag0):
         self.mesh = ngsolve.Mesh(_to_ngmesh(X0, T0, S0, tag0))

@@ -108,7 +108,8 @@ class FEMDiscretization(Discretization):
         if arrays is not None:
             tables = (np.asarray(arrays.X, dtype=float), arrays.T)  # T: int32 below 2^31 vertices (as p1_tables)
             bnd = arrays.dirichlet_vertices()
-            self.nodes = nodes = LagrangeNodes.from_arrays(*tables, lambda where: meshpoints(*arrays.vertex_location(where)))
+            self.nodes = nodes = LagrangeNodes.from_arrays(
+                *tables, lambda where: meshpoints(*arrays.vertex_location(where)))
             free = ~bnd
         else:
             if getattr(problem.domain, "curved", False) and order > 1:
@@ -235,7 +236,7 @@ class FEMDiscretization(Discretization):
         for a, cf in enumerate(fields or ()):
             if cf is not None:
                 if not coordinate_only(CoefficientFunction(cf)):
-                    self.mesh  # noqa: B018 -- the nodes evaluate on this level's own mesh from now on
+                    _ = self.mesh  # built now: the nodes evaluate on this level's own mesh from then on
                 x0[a * ni:(a + 1) * ni] = self.nodes.from_values(self.nodes.evaluate(CoefficientFunction(cf)))[self.interior]
         return x0, np.zeros(ni)
 

@@ -1,13 +1,14 @@
 """Wall time of the adaptive inexact Newton mode against the inexact and the direct one ([JSC20] disk).
 
 ``python -m ngcontact.studies.adaptive_speed OUT [--orders 1 2] [--modes direct inexact adaptive]
-[--tag after]`` (``make adaptive-speed``: OUT = results/inexact) runs, in one process and one after the
+[--tag after] [--fitted]`` (``make adaptive-speed``: OUT = results/inexact) runs, in one process and one after the
 other, the finest meshes of ``results/inexact/TABLES.md`` (P1 maxh 0.0148: 33730 triangles; P2 maxh
 0.0165: 27466 triangles), cold start X0 = [g, 0, 0], GMRES(100) + ILU, gamma_alg = gamma_lin = 0.3,
 nu = 10 (the study's settings, :mod:`.inexact`; modes ``*-cg``: CG + algebraic multigrid instead,
 ``multigrid``: CG + multigrid to a tenth of the Newton tolerance, :data:`MODE_OPTIONS`), and appends one row per run to
 ``OUT/adaptive_speed.json`` (keyed by ``--tag``, e.g. the code version measured); ``OUT/ADAPTIVE_SPEED.md``
-is written from all rows.  Wall and CPU seconds are both recorded: on a shared machine the CPU time of
+is written from all rows.  ``--fitted``: the same sizes on meshes fitted to the exact free boundary r = 1/sqrt 2
+(``disk_fitted``; the meshes that stand for [JSC20]'s disk: its P2 estimators are sharp only there, see README).  Wall and CPU seconds are both recorded: on a shared machine the CPU time of
 the (single-threaded) process is the steadier measure.
 
 The imports are absolute, so the same file can time another checkout of the package
@@ -32,27 +33,31 @@ MODE_OPTIONS = {"direct": dict(newton="direct"), "inexact": dict(newton="inexact
                 "multigrid": dict(newton="multigrid")}
 
 
-def measure(order: int, mode: str, say=print) -> dict:
-    """One cold-start run of the disk test (settings of the module docstring): counts, error, times [s]."""
+def measure(order: int, mode: str, say=print, fitted: bool = False) -> dict:
+    """One cold-start run of the disk test (settings of the module docstring): counts, error, times [s].
+    ``fitted``: the mesh has the exact free boundary r = 1/sqrt 2 as an internal line (``disk_fitted``: f and
+    lam jump there; the meshes that stand for [JSC20]'s disk, whose P2 estimators are sharp only on them)."""
+    import math
     from dataclasses import replace
 
     from ngcontact.domains import UnitDisk
     from ngcontact.drivers import RunOptions, run_scene
     from ngcontact.scenes import load_scene
 
-    base = load_scene("disk")
-    scene = replace(base, problem=replace(base.problem, domain=UnitDisk(maxh=MAXH[order])), defaults={})
+    base = load_scene("disk_fitted" if fitted else "disk")
+    domain = UnitDisk(maxh=MAXH[order], interface_radius=1 / math.sqrt(2) if fitted else None)
+    scene = replace(base, problem=replace(base.problem, domain=domain), defaults={})
     opts = RunOptions(order=order, levels=1, start="cold", gamma_alg=0.3, gamma_lin=0.3, nu=10, **MODE_OPTIONS[mode])
     w0, c0 = time.perf_counter(), time.process_time()
     res = run_scene(scene, opts)
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     r = res.rows[-1]
-    out = {"order": order, "mode": mode, "nelem": int(r["nelem"]), "newton": int(r["newton_its"]),
+    out = {"order": order, "mode": mode, "fitted": bool(fitted), "nelem": int(r["nelem"]), "newton": int(r["newton_its"]),
            "gmres": int(r.get("gmres_its", 0) or r.get("cg_its", 0) or 0), "err_energy": float(r["err_energy"]),
            "time_solve_s": float(r["time_solve_s"]), "time_estimate_s": float(r.get("time_estimate_newton_s", 0.0)),
            "n_estimates": int(r.get("n_estimates", 0) or 0), "wall_s": wall, "cpu_s": cpu,
            "converged": bool(res.converged)}
-    say(f"P{order} {mode:9s} nelem {out['nelem']} Newton {out['newton']} GMRES {out['gmres']} "
+    say(f"P{order}{' fitted' if fitted else ''} {mode:9s} nelem {out['nelem']} Newton {out['newton']} GMRES {out['gmres']} "
         f"err {out['err_energy']:.6e} solve {out['time_solve_s']:.1f} s (estimators {out['time_estimate_s']:.1f} s) "
         f"wall {wall:.1f} s cpu {cpu:.1f} s", flush=True)
     return out
@@ -71,10 +76,12 @@ def write_table(rows: list, path: Path, command: str) -> None:
              "estimators [s] | solve [s] | wall [s] | cpu [s] |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        ref = next((d for d in rows if d["tag"] == r["tag"] and d["order"] == r["order"] and d["mode"] == "direct"),
-                   None)
+        fitted = r.get("fitted", False)
+        ref = next((d for d in rows if d["tag"] == r["tag"] and d["order"] == r["order"] and d["mode"] == "direct"
+                    and d.get("fitted", False) == fitted), None)
         ratio = f"{r['err_energy'] / ref['err_energy']:.4f}" if ref else "-"
-        lines.append(f"| {r['tag']} | {r['order']} | {r['nelem']} | {r['mode']} | {r['newton']} | "
+        mesh = f"{r['nelem']} fitted" if fitted else f"{r['nelem']}"
+        lines.append(f"| {r['tag']} | {r['order']} | {mesh} | {r['mode']} | {r['newton']} | "
                      f"{r['gmres'] or '-'} | "
                      f"{r['err_energy']:.6e} | {ratio} | {r['n_estimates'] or '-'} | {r['time_estimate_s']:.1f} | "
                      f"{r['time_solve_s']:.1f} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} |")
@@ -87,17 +94,19 @@ def main(argv=None) -> None:
     ap.add_argument("--orders", type=int, nargs="+", default=[1, 2], choices=sorted(MAXH))
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     ap.add_argument("--tag", default="after")
+    ap.add_argument("--fitted", action="store_true", help="meshes fitted to the free boundary (disk_fitted)")
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     store = a.out / "adaptive_speed.json"
     rows = json.loads(store.read_text()) if store.is_file() else []
     for order in a.orders:
         for mode in a.modes:
-            row = dict(measure(order, mode), tag=a.tag)
-            rows = [r for r in rows if (r["tag"], r["order"], r["mode"]) != (a.tag, order, mode)] + [row]
+            row = dict(measure(order, mode, fitted=a.fitted), tag=a.tag)
+            rows = [r for r in rows if (r["tag"], r["order"], r["mode"], r.get("fitted", False))
+                    != (a.tag, order, mode, a.fitted)] + [row]
             store.write_text(json.dumps(rows, indent=1) + "\n")
     write_table(rows, a.out / "ADAPTIVE_SPEED.md", "python -m ngcontact.studies.adaptive_speed results/inexact "
-                "[--tag TAG] (before: PYTHONPATH=<checkout of the base commit>)")
+                "[--tag TAG] [--fitted] (before: PYTHONPATH=<checkout of the base commit>)")
 
 
 if __name__ == "__main__":
