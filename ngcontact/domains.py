@@ -207,18 +207,27 @@ class _CoarseLocator:
         det = ax * by - ay * bx
         self._affine = (C[:, 0].copy(), C[:, 1].copy(), by / det, -bx / det, -ay / det, ax / det)
 
+    #: points located per batch (bounds the temporaries)
+    CHUNK = 1 << 18
+
     def locate(self, pts: np.ndarray):
         """(elements (n,), reference coordinates (n, 2)) of the points ``pts`` (n, 2) of the domain."""
         import matplotlib.tri as mtri
 
-        px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
-        el = np.asarray(mtri.Triangulation(self.X0[:, 0], self.X0[:, 1], self.T0).get_trifinder()(px, py),
-                        dtype=np.int64)
-        if len(el) and el.min() < 0:
-            raise ValueError("a vertex of a finer level lies outside the coarsest mesh")
-        cx, cy, i00, i01, i10, i11 = (a[el] for a in self._affine)
-        rx, ry = px - cx, py - cy
-        return el, np.stack([i00 * rx + i01 * ry, i10 * rx + i11 * ry], axis=1)
+        finder = mtri.Triangulation(self.X0[:, 0], self.X0[:, 1], self.T0).get_trifinder()
+        n = len(pts)
+        el, ref = np.empty(n, dtype=np.int32 if len(self.T0) < 2 ** 31 else np.int64), np.empty((n, 2))
+        for lo in range(0, n, self.CHUNK):
+            px, py = np.ascontiguousarray(pts[lo:lo + self.CHUNK, 0]), np.ascontiguousarray(pts[lo:lo + self.CHUNK, 1])
+            e = np.asarray(finder(px, py))
+            if len(e) and e.min() < 0:
+                raise ValueError("a vertex of a finer level lies outside the coarsest mesh")
+            cx, cy, i00, i01, i10, i11 = (a[e] for a in self._affine)
+            rx, ry = px - cx, py - cy
+            el[lo:lo + len(e)] = e
+            ref[lo:lo + len(e), 0] = i00 * rx + i01 * ry
+            ref[lo:lo + len(e), 1] = i10 * rx + i11 * ry
+        return el, ref
 
 
 class ArrayMesh:
