@@ -133,8 +133,9 @@ def scipy_csr(bf_or_mat) -> sp.csr_matrix:
 
 #: node types of a CoefficientFunction tree (its ``str``) whose value at a point depends on the coordinates
 #: only: constants, x/y/z, arithmetic and elementary functions, IfPos, parameters, vectors and norms of them
-_POINTWISE = re.compile(r"coordinate [xyz]$|binary operation|unary operation|scale|-?[0-9.]|ZeroC"
-                        r"|.*IfPos|.*Parameter|.*Constant|VectorialCoefficientFunction|.*Norm")
+_POINTWISE = re.compile(r"coordinate [xyz]$|binary operation|unary operation|scale -?[0-9.]|-?[0-9.]|ZeroC"
+                        r"|\w*IfPosCoefficientFunction|\w*ParameterCoefficientFunction|\w*ConstantCoefficientFunction"
+                        r"|VectorialCoefficientFunction|\w*NormCoefficientFunction")
 
 
 def coordinate_only(cf) -> bool:
