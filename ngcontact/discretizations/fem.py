@@ -363,7 +363,7 @@ def _p1_data(problem, nodes, boundary: np.ndarray) -> dict:
 
 def _parent_p1_values(previous, fine, values):
     """P1 interpolant of nodal ``values`` (k x coarse nodes) at ``fine``'s interior nodes from the
-    parent table ``fine.mesh.ngc_parents`` of structured domains (``domains._BoxDomain.meshes``),
+    parent table ``fine.mesh.ngc_parents`` of structured domains (``domains.boxes._BoxDomain.meshes``),
     or None (no table, or it does not describe these two meshes: checked on the coordinates,
     bitwise).  Cheaper than the coordinate matching of :func:`_nested_p1_values`."""
     pairs = _parent_pairs(previous, fine)

@@ -1,0 +1,117 @@
+"""What every domain shares: the boundary names, the :class:`Domain` interface, argument checks and
+mesh measures."""
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any, Iterator
+
+import netgen.meshing as ngm
+import numpy as np
+import ngsolve
+
+__all__ = ["DIRICHLET", "INTERFACE", "Domain", "check_triangular", "mesh_size"]
+
+_SIDES = ("bottom", "right", "top", "left")
+
+#: NGSolve ``dirichlet=`` regex of the outer boundary: every named boundary segment except internal
+#: interfaces (std::regex, full match)
+DIRICHLET = "(?!interface$).*"
+INTERFACE = "interface"
+
+
+def mesh_size(mesh) -> float:
+    """Largest edge length (element diameter) of a triangular mesh.
+
+    Parameters
+    ----------
+    mesh : ngsolve.Mesh or netgen.meshing.Mesh
+        A 2D triangular mesh; curved elements are measured by their straight
+        edges.
+
+    Returns
+    -------
+    float
+        ``max_K diam(K)``.
+    """
+    ngmesh = getattr(mesh, "ngmesh", mesh)
+    P = ngmesh.Coordinates()[ngmesh.Elements2D().NumPy()["nodes"][:, :3] - 1]
+    return float(np.sqrt(((P - np.roll(P, 1, axis=1)) ** 2).sum(axis=-1)).max())
+
+
+def check_triangular(ngmesh, what: str) -> None:
+    """ValueError unless ``ngmesh`` (netgen mesh) is a 2D mesh of triangles: the discretizations (Lagrange
+    nodes, RT fluxes, bisection) are written for triangles.  ``what`` names the mesh in the message."""
+    if ngmesh.dim != 2 or len(ngmesh.Elements3D()) > 0:
+        raise ValueError(f"{what} is a {ngmesh.dim}D mesh; ngcontact solves 2D problems on triangular meshes")
+    nodes = ngmesh.Elements2D().NumPy()["nodes"]
+    if len(nodes) == 0:
+        raise ValueError(f"{what} has no 2D elements")
+    if nodes.shape[1] > 3 and (nquad := int(np.count_nonzero(nodes[:, 3]))):
+        raise ValueError(f"{what} has {nquad} quadrilateral element(s) of {len(nodes)}; ngcontact needs a triangular "
+                         f"mesh (netgen: GenerateMesh without quad_dominated)")
+
+
+def _fail(obj, field: str, value: Any, what: str):
+    raise ValueError(f"{type(obj).__name__}.{field} must be {what}, got {value!r}")
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def _is_real(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_positive(obj, name: str):
+    if not (_is_real(v := getattr(obj, name)) and v > 0):
+        _fail(obj, name, v, "a positive finite number")
+
+
+def _check_level(level, name: str = "level") -> int:
+    if not (_is_int(level) and level >= 0):
+        raise ValueError(f"{name} must be a non-negative integer, got {level!r}")
+    return int(level)
+
+
+class Domain:
+    """Base class: a domain and its sequence of nested meshes T_0, T_1, ...
+
+    Subclasses implement ``name`` and ``_ngmeshes(start, stop)``, a generator
+    of independent netgen meshes for the levels ``start, ..., stop - 1``.
+    """
+
+    curved: bool = False  #: True if the boundary is curved (call ``mesh.Curve(p)``)
+
+    @property
+    def name(self) -> str:
+        """Short human-readable description."""
+        raise NotImplementedError
+
+    def _ngmeshes(self, start: int, stop: int) -> Iterator[ngm.Mesh]:
+        raise NotImplementedError
+
+    def mesh(self, level: int = 0) -> ngsolve.Mesh:
+        """A fresh mesh T_level (``level`` uniform refinements of T_0)."""
+        level = _check_level(level)
+        return ngsolve.Mesh(next(self._ngmeshes(level, level + 1)))
+
+    def meshes(self, levels: int, arrays: bool = False) -> Iterator[ngsolve.Mesh]:
+        """Yield T_0, ..., T_{levels-1}, refining incrementally.
+
+        The yielded meshes are independent objects: refining or curving one
+        does not affect the others.  ``arrays``: the caller also accepts :class:`ArrayMesh`
+        levels (structured rectangles yield them; other domains yield NGSolve meshes anyway).
+        """
+        for ngmesh in self._ngmeshes(0, _check_level(levels, "levels")):
+            yield ngsolve.Mesh(ngmesh)
+
+    def h(self, level: int = 0) -> float:
+        """Mesh size of T_level: ``mesh_size(self.mesh(level))``, cached per level."""
+        level, cache = _check_level(level), self.__dict__.setdefault("_h_cache", {})
+        if level not in cache:
+            cache[level] = mesh_size(self.mesh(level))
+        return cache[level]
+
+
