@@ -187,3 +187,27 @@ def test_obstacle_warm_start_sweeps_keep_the_solution_and_help_the_first_step(mo
     (a, ca), (b, cb) = out[0], out[default]
     np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-12 * np.abs(a.x).max())
     assert cb <= ca and b.iterations <= a.iterations
+
+
+@pytest.mark.parametrize("tension", [1e-6, 2.0 ** -20 * 3.0, 1e8])
+def test_obstacle_warm_start_is_invariant_under_a_tension_scale(tension):
+    """The nested start's active set, and so every Newton iterate, must not depend on the units of the
+    tension: with mu times t (u fixed, loads and multipliers times t) the nested ex9 run takes the
+    Newton steps of the unscaled one, level by level (the start compares w g with the multiplier read off
+    the residual, both in units of y; comparing g itself took 3/4/3/4 steps at t = 1e-6 instead of 3/2/1/2)."""
+    from dataclasses import replace
+
+    from ngcontact.drivers import RunOptions, run_scene
+    from ngcontact.problems.manufactured import scale_problem
+    from ngcontact.scenes import load_scene
+
+    scene = load_scene("ex9_obstacle")
+    runs = {}
+    for t in (1.0, tension):
+        sc = replace(scene, problem=scale_problem(scene.problem, data=1.0, tension=t))
+        res = run_scene(sc, RunOptions(levels=4), progress=lambda m: None)
+        runs[t] = res
+    base, scaled = runs[1.0], runs[tension]
+    assert [r["newton_its"] for r in scaled.rows] == [r["newton_its"] for r in base.rows]
+    assert [r["active_nodes"] for r in scaled.rows] == [r["active_nodes"] for r in base.rows]
+    np.testing.assert_allclose(scaled.x, base.x, rtol=0, atol=1e-10 * np.abs(base.x).max())

@@ -287,8 +287,10 @@ class ComplementaritySystem:
         r = self.K @ x - self.F
         c = self.K.diagonal()[self.up[one]] / self.D[one]
         y_res = r[self.up[one]] / self.D[one]
-        # active iff g <= y0 and c g <= y_res  <=>  g <= min(y0, y_res / c)
-        y[one] = np.minimum(y[one], y_res / c)
+        # Newton-min's test is w g <= y (w: the constraint weight); active iff w g <= y0 and c g <= y_res
+        #   <=>  w g <= min(y0, w y_res / c)   (w y_res / c is in the units of y)
+        w = self.constraint_weight
+        y[one] = np.minimum(y[one], w * y_res / c)
         return x, y
 
     def direct_solve(self, A: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
