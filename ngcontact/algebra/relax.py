@@ -1,0 +1,134 @@
+r"""Free-boundary relaxation: projected Jacobi sweeps near the free boundary of a Newton-min iterate.
+
+Newton-min (the primal-dual active set method) moves a wrong free boundary by about one layer of nodes per
+step once it has overshot: on the two-membrane test 1 of [CAMWA21] the nested start on 2M unknowns took 8
+steps on the finest level, its active sets 323,813 -> 331,557 -> 329,665 -> ... -> 329,333.  After a step
+the smooth part of the error is gone and what is left sits at the free boundary: there a few sweeps of a
+projected smoother of the energy J(x) = 1/2 x.K x - F.x on the constraint set {B x >= b} (the nonlinear
+smoother of truncated nonsmooth Newton multigrid, Graeser-Kornhuber) move the boundary where the next
+step's linear solve would, at the cost of sparse products on a band of rows.
+
+One call (:meth:`FreeBoundaryRelaxation.relax`) on (x, y):
+
+1. the rows of the active set A = {w g(x) <= y} that touch an inactive row, and the inactive rows that touch
+   an active one (the row graph is the pattern of K between the rows' first unknowns), grown by ``layers``
+   layers: the band;
+2. ``sweeps`` damped Jacobi sweeps x_U <- x_U + omega diag(K)_U^-1 (F - K x)_U on the unknowns U of the band
+   rows, each followed by the projection of every band row onto its constraint: x_up <- max(x_up, b) for an
+   obstacle row; for a two-membrane row with g < b the pair moves along (1/d_up, -1/d_lo) to g = b (the
+   nearest point in the metric diag(K), so the pair's energy is minimized exactly when K has no entry between
+   the two unknowns, which :class:`FreeBoundaryRelaxation` checks);
+3. the band rows projected in the last sweep become active with the multiplier read off the residual,
+   y = max(0, y_res), y_res = (r_up / d_up - r_lo / d_lo) / (D (1 / d_up + 1 / d_lo)), r = K x - F (the
+   obstacle row: r_up / D); the other band rows inactive (y = 0).  Rows outside the band keep x and y.
+
+The result is another point of the Newton loop (its residual and certificate are those of the new (x, y));
+Newton-min's next step depends on it through the active set only.
+"""
+from __future__ import annotations
+
+from typing import Tuple
+
+import numpy as np
+import scipy.sparse as sp
+
+from .sparse import submatrix
+
+__all__ = ["FreeBoundaryRelaxation"]
+
+
+class FreeBoundaryRelaxation:
+    """Projected Jacobi on a band around the free boundary of a :class:`~.system.ComplementaritySystem`
+    (module docstring).  Built once per system (row graph, diagonal); ``applicable`` is False unless K is
+    SPD as the system declares it (``factor_reuse``: every reduced matrix of its steps is SPD, so K is the
+    Hessian of the energy; not the non-symmetric dG systems or the condensed HHO step), and where a
+    constrained pair is coupled in K (the pair update would not be a minimization)."""
+
+    def __init__(self, system):
+        self.system = system
+        K = system.K.tocsr()
+        self.K = K
+        self.d = K.diagonal()
+        up, lo = system.up, system.lo
+        self.two = lo >= 0
+        self.lo_safe = np.where(self.two, lo, up)  # an index for every row (the lower unknown or the upper one)
+        spd = bool(getattr(system, "factor_reuse", False)) and bool(len(up)) and bool(np.all(self.d > 0))
+        coupled = spd and self.two.any() and np.any(np.asarray(K[up[self.two], lo[self.two]]).ravel() != 0)
+        self.applicable = spd and not coupled
+        self.G = _row_graph(K, up) if self.applicable else sp.csr_matrix((len(up), len(up)))
+
+    def boundary(self, active: np.ndarray) -> np.ndarray:
+        """The rows of the free boundary of ``active``: active rows next to an inactive one and inactive rows
+        next to an active one."""
+        G = self.G
+        nb_active = G @ active.astype(float)
+        return np.flatnonzero((active & (nb_active < np.diff(G.indptr))) | (~active & (nb_active > 0)))
+
+    def band(self, edge: np.ndarray, layers: int) -> np.ndarray:
+        """The rows ``edge`` grown by ``layers`` layers of the row graph (increasing row numbers)."""
+        G = self.G
+        seen = np.zeros(G.shape[0], dtype=bool)
+        seen[edge] = True
+        front = edge
+        for _ in range(layers):
+            if not len(front):
+                break
+            nb = G[front].indices
+            nb = np.unique(nb[~seen[nb]])
+            seen[nb] = True
+            front = nb
+        return np.flatnonzero(seen)
+
+    def relax(self, x: np.ndarray, y: np.ndarray, *, sweeps: int, omega: float, layers: int,
+              moved: int = 0, min_layers: float = 0.0) -> Tuple[np.ndarray, np.ndarray, int]:
+        """(x', y', rows whose class changed) from the iterate (x, y) (module docstring); (x, y, 0) when not
+        ``applicable``, when the free boundary is empty, or when the step moved it by less than ``min_layers``
+        layers: ``moved`` (the rows whose class the step changed) < ``min_layers`` x its rows."""
+        s = self.system
+        if not self.applicable or sweeps < 1:
+            return x, y, 0
+        w = s.constraint_weight
+        active = w * s.gap(x) <= y
+        edge = self.boundary(active)
+        if not len(edge) or (min_layers > 0 and moved < min_layers * len(edge)):
+            return x, y, 0
+        rows = self.band(edge, layers)
+        up, lo, two = s.up[rows], self.lo_safe[rows], self.two[rows]
+        U = np.unique(np.concatenate([up, lo[two]]))
+        KU, dU, FU = self.K[U], self.d[U], s.F[U]
+        x, y = np.array(x, dtype=float), np.array(y, dtype=float)
+        d_up, d_lo = self.d[up], self.d[lo]
+        b = s.b[rows]
+        hit = np.zeros(len(rows), dtype=bool)
+        for _ in range(sweeps):
+            x[U] += omega * (FU - KU @ x) / dU
+            g = np.where(two, x[up] - x[lo], x[up]) - b
+            hit = g < 0
+            t2 = hit & two
+            if t2.any():  # the pair moves along (1/d_up, -1/d_lo) to g = b
+                t = g[t2] / (1.0 / d_up[t2] + 1.0 / d_lo[t2])
+                x[up[t2]] -= t / d_up[t2]
+                x[lo[t2]] = x[up[t2]] - b[t2]
+            t1 = hit & ~two
+            x[up[t1]] = b[t1]
+        r = KU @ x - FU  # residual at U, mapped to the band rows
+        pos = np.searchsorted(U, up)
+        r_up = r[pos]
+        r_lo = np.where(two, r[np.searchsorted(U, lo)], 0.0)
+        inv_up, inv_lo = 1.0 / d_up, np.where(two, 1.0 / d_lo, 0.0)
+        y_res = (r_up * inv_up - r_lo * inv_lo) / (s.D[rows] * (inv_up + inv_lo))
+        y[rows] = np.where(hit, np.maximum(y_res, 0.0), 0.0)
+        changed = int(np.count_nonzero(hit != active[rows]))
+        return x, y, changed
+
+
+def _row_graph(K: sp.csr_matrix, up: np.ndarray) -> sp.csr_matrix:
+    """The pattern of K[up][:, up] (ones): rows l, l' are neighbours when their first unknowns are coupled in K.
+    Where the rows' first unknowns are 0..m-1 and K has no entry from them to the others (two membranes,
+    membrane 1 first; an obstacle on every unknown) it is K's leading block, read without a copy of the values."""
+    m = len(up)
+    end = K.indptr[m] if m <= K.shape[0] else 0
+    if np.array_equal(up, np.arange(m)) and (end == 0 or K.indices[:end].max() < m):
+        return sp.csr_matrix((np.ones(end), K.indices[:end], K.indptr[:m + 1]), shape=(m, m))
+    G = submatrix(K, up, up)
+    return sp.csr_matrix((np.ones(G.nnz), G.indices, G.indptr), shape=G.shape)
