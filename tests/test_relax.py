@@ -107,3 +107,56 @@ def test_multigrid_newton_with_relaxation_takes_fewer_steps_to_the_same_solution
     assert steps[0] < steps[1] and on.rows[-1]["newton_its"] < off.rows[-1]["newton_its"]
     assert any(it.get("relaxed") for it in on.iterations)
     assert not any(it.get("relaxed") for it in off.iterations)
+
+
+class _SolutionStrategy:
+    """A linear-solve strategy whose every step returns (x*, y*); step 1 marks it provisional."""
+
+    from ngcontact.newton.base import IterationRecord as record_type
+
+    def __init__(self, x, y):
+        self.x, self.y = x, y
+
+    def start(self, system, estimates):
+        return self
+
+    can_refresh = False
+
+    def step(self, k, x, y, c, Ca, Cb, res_prev):
+        from ngcontact.newton.linear import Trial
+
+        return Trial(self.x.copy(), self.y.copy(), 0.0, {}, provisional=(k == 1))
+
+    def after_step(self, k, x, y, step):
+        return {}
+
+
+def test_the_loop_does_not_stop_at_a_provisional_point():
+    """Step 1 hands the loop the exact solution as a provisional point: the loop takes one more step."""
+    problem = load_scene("ex9_obstacle").problem
+    disc = FEMDiscretization(problem, list(problem.domain.meshes(3))[2], order=1)
+    s = disc.system
+    x, y = disc.initial_guess(None)
+    sol = semismooth_newton(s, x, y, NewtonOptions())
+    assert sol.converged
+    d = s.data_scale()  # the loop iterates on the data / d
+    res = semismooth_newton(s, x, y, NewtonOptions(), linear=_SolutionStrategy(sol.x / d, sol.y / d))
+    assert res.converged and res.iterations == 2
+
+
+def test_relaxed_iterates_are_handed_over_as_provisional(monkeypatch):
+    """The multigrid session marks exactly the relaxed iterates provisional (the loop then never stops at one)."""
+    import ngcontact.newton.multigrid as mg
+
+    seen = []
+    step = mg._MultigridSession.step
+
+    def spy(self, *args):
+        trial = step(self, *args)
+        seen.append((trial.provisional, trial.fields.get("relaxed", 0)))
+        return trial
+
+    monkeypatch.setattr(mg._MultigridSession, "step", spy)
+    run_scene(load_scene("test1"), RunOptions(levels=4, newton="multigrid"))
+    assert any(p for p, _ in seen)
+    assert all(p == (r > 0) for p, r in seen)

@@ -74,9 +74,9 @@ class FreeBoundaryRelaxation:
             if not len(front):
                 break
             nb = G[front].indices
-            nb = np.unique(nb[~seen[nb]])
+            nb = nb[~seen[nb]]
             seen[nb] = True
-            front = nb
+            front = nb[np.unique(nb, return_index=True)[1]] if len(nb) > 1 else nb
         return np.flatnonzero(seen)
 
     def relax(self, x: np.ndarray, y: np.ndarray, *, sweeps: int, omega: float, layers: int,
@@ -93,28 +93,44 @@ class FreeBoundaryRelaxation:
         if not len(edge) or (min_layers > 0 and moved < min_layers * len(edge)):
             return x, y, 0
         rows = self.band(edge, layers)
-        up, lo, two = s.up[rows], self.lo_safe[rows], self.two[rows]
-        U = np.unique(np.concatenate([up, lo[two]]))
-        KU, dU, FU = self.K[U], self.d[U], s.F[U]
-        x, y = np.array(x, dtype=float), np.array(y, dtype=float)
+        two = self.two[rows]
+        up, lo = s.up[rows], self.lo_safe[rows]
+        in_band = np.zeros(s.n, dtype=bool)
+        in_band[up] = True
+        in_band[lo[two]] = True
+        U = np.flatnonzero(in_band)
+        # the sweeps run on the band's unknowns only: x_U with the rest of x frozen in c = F_U - K_{U,rest} x_rest
+        local = np.full(s.n, -1, dtype=np.int64)
+        local[U] = np.arange(len(U))
+        KU = self.K[U]
+        x_rest = np.array(x, dtype=float)
+        xU = x_rest[U].copy()
+        x_rest[U] = 0.0
+        c = s.F[U] - KU @ x_rest
+        cols = local[KU.indices]
+        inside = cols >= 0
+        per_row = np.add.reduceat(inside, KU.indptr[:-1], dtype=np.int64) if KU.nnz else np.zeros(len(U), np.int64)
+        KUU = sp.csr_matrix((KU.data[inside], cols[inside], np.concatenate([[0], np.cumsum(per_row)])),
+                            shape=(len(U), len(U)))
+        dU = self.d[U]
+        pu, pl = local[up], local[lo]  # pl = pu on one-sided rows (lo_safe)
         d_up, d_lo = self.d[up], self.d[lo]
         b = s.b[rows]
+        w_up = np.where(two, 1.0 / (1.0 + d_up / d_lo), 0.0)  # the pair's shift of x_up per unit of gap
         hit = np.zeros(len(rows), dtype=bool)
         for _ in range(sweeps):
-            x[U] += omega * (FU - KU @ x) / dU
-            g = np.where(two, x[up] - x[lo], x[up]) - b
+            xU += omega * (c - KUU @ xU) / dU
+            g = np.where(two, xU[pu] - xU[pl], xU[pu]) - b
             hit = g < 0
+            # the pair moves along (1/d_up, -1/d_lo) to g = b; an obstacle row to x_up = b
+            xU[pu[hit]] = np.where(two[hit], xU[pu[hit]] - w_up[hit] * g[hit], b[hit])
             t2 = hit & two
-            if t2.any():  # the pair moves along (1/d_up, -1/d_lo) to g = b
-                t = g[t2] / (1.0 / d_up[t2] + 1.0 / d_lo[t2])
-                x[up[t2]] -= t / d_up[t2]
-                x[lo[t2]] = x[up[t2]] - b[t2]
-            t1 = hit & ~two
-            x[up[t1]] = b[t1]
-        r = KU @ x - FU  # residual at U, mapped to the band rows
-        pos = np.searchsorted(U, up)
-        r_up = r[pos]
-        r_lo = np.where(two, r[np.searchsorted(U, lo)], 0.0)
+            xU[pl[t2]] = xU[pu[t2]] - b[t2]
+        r = KUU @ xU - c  # residual at U, mapped to the band rows
+        x = np.array(x, dtype=float)
+        x[U] = xU
+        y = np.array(y, dtype=float)
+        r_up, r_lo = r[pu], np.where(two, r[pl], 0.0)
         inv_up, inv_lo = 1.0 / d_up, np.where(two, 1.0 / d_lo, 0.0)
         y_res = (r_up * inv_up - r_lo * inv_lo) / (s.D[rows] * (inv_up + inv_lo))
         y[rows] = np.where(hit, np.maximum(y_res, 0.0), 0.0)

@@ -58,12 +58,15 @@ GMRES_STOP = {"tolerance": 0, "monitor": 1, "maxiter": 2, "stagnation": 3}
 
 @dataclass
 class Trial:
-    """The full Newton iterate of one step, the linear-solve time and the record fields the strategy measured."""
+    """The full Newton iterate of one step, the linear-solve time and the record fields the strategy measured.
+    ``provisional``: the point is not the solution of the step's linearization (a relaxed iterate,
+    :mod:`.multigrid`); the loop does not stop at it, the next step starts from it."""
 
     x: np.ndarray
     y: np.ndarray
     time_linear: float
     fields: dict
+    provisional: bool = False
 
 
 # ---------------------------------------------------------------- direct solves

@@ -181,7 +181,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
             callback(rec)
         if emit:
             emit(k, x, y)
-        if failed:
+        if failed or trial.provisional:  # a provisional point (a relaxed iterate) is never the last one
             continue
         done = stop.check(rec, options.tol)
         if done is not None and certified(done):

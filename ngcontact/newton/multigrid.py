@@ -27,9 +27,10 @@ Newton-min iterates are relaxed at the free boundary (``relax_sweeps`` > 0): aft
 ``relax_steps`` steps whose iterate's active set differs from the one the step solved for by at least a tenth
 of a layer of the free boundary (``RELAX_MIN_LAYERS``), ``relax_sweeps`` projected Jacobi sweeps on the rows
 within as many layers of the free boundary move it where the next steps would, one layer per step
-(:mod:`~ngcontact.algebra.relax`); the relaxed point replaces the iterate when it changes a row's class.  The
-converged solution is the same (finite termination; the stopping test and certificate apply to whatever point
-the loop holds); on the nested test 1 the finest level's Newton steps fall from 8 to 3.
+(:mod:`~ngcontact.algebra.relax`); the relaxed point replaces the iterate when it changes a row's class, as a
+*provisional* point: the loop never stops at it, so the last iterate is always the solution of a linearization
+(solved to the full target) and the converged solution is that of the direct solves.  On the nested test 1
+(2M unknowns) the finest level's Newton steps fall from 8 to 4.
 
 The hierarchy is reused while the row classes of the steps do not change (the last Newton-min
 step, which confirms the active set, then costs a few CG iterations); when at most
@@ -202,17 +203,19 @@ class _MultigridSession:
         fields["cg_cum"] = self.cg_cum
         xn, yn = lin.recover(z)
         t_lin = time.perf_counter() - t0
+        relaxed = False
         if opt.relax_sweeps and k <= opt.relax_steps and not lin.mixed.any():
-            xn, yn = self._relax(xn, yn, lin, fields)
-        return Trial(xn, yn, t_lin, fields)
+            xn, yn, relaxed = self._relax(xn, yn, lin, fields)
+        return Trial(xn, yn, t_lin, fields, provisional=relaxed)
 
     def _relax(self, x, y, lin, fields):
         """The free-boundary relaxation (:mod:`~ngcontact.algebra.relax`) of a Newton-min iterate whose active set
-        differs from the one its step solved for (a step that keeps the active set is left as it is)."""
+        differs from the one its step solved for (a step that keeps the active set is left as it is): (x, y,
+        whether the point returned is the relaxed one)."""
         system = self.system
         moved = int(np.count_nonzero(np.less_equal(*system.pair(x, y)) != lin.eq))
         if not moved:
-            return x, y
+            return x, y, False
         t0 = time.perf_counter()
         if self._relaxation is None:
             self._relaxation = FreeBoundaryRelaxation(system)
@@ -222,7 +225,7 @@ class _MultigridSession:
         fields.update(relaxed=changed, time_relax=time.perf_counter() - t0)
         # the relaxed point only where it moves the free boundary: otherwise the next step is the same, and the
         # Newton iterate (an exact solve of its linearization when CG ran to the target) stays the iterate
-        return (xr, yr) if changed else (x, y)
+        return (xr, yr, True) if changed else (x, y, False)
 
     def _early_exit(self, lin, mg, z0, target: float, bnorm: float):
         """CG that stops as soon as its iterate's active set differs from the one this step solves for, once
