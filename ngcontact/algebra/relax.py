@@ -4,9 +4,10 @@ Newton-min (the primal-dual active set method) moves a wrong free boundary by ab
 step once it has overshot: on the two-membrane test 1 of [CAMWA21] the nested start on 2M unknowns took 8
 steps on the finest level, its active sets 323,813 -> 331,557 -> 329,665 -> ... -> 329,333.  After a step
 the smooth part of the error is gone and what is left sits at the free boundary: there a few sweeps of a
-projected smoother of the energy J(x) = 1/2 x.K x - F.x on the constraint set {B x >= b} (the nonlinear
-smoother of truncated nonsmooth Newton multigrid, Graeser-Kornhuber) move the boundary where the next
-step's linear solve would, at the cost of sparse products on a band of rows.
+projected smoother of the energy J(x) = 1/2 x.K x - F.x on the constraint set {B x >= b} (the role of the
+nonlinear projected Gauss-Seidel smoother in truncated nonsmooth Newton multigrid, Graeser-Kornhuber; here
+damped projected Jacobi, vectorized) move the boundary where the next steps would, at the cost of sparse
+products on a band of rows.
 
 One call (:meth:`FreeBoundaryRelaxation.relax`) on (x, y):
 
