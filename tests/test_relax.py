@@ -160,3 +160,21 @@ def test_relaxed_iterates_are_handed_over_as_provisional(monkeypatch):
     run_scene(load_scene("test1"), RunOptions(levels=4, newton="multigrid"))
     assert any(p for p, _ in seen)
     assert all(p == (r > 0) for p, r in seen)
+
+
+def test_band_is_the_graph_neighbourhood_of_the_free_boundary():
+    """band(edge, L) = the rows within graph distance L of the free boundary rows (scipy's breadth-first
+    distances on the row graph), and the free boundary = active rows next to inactive ones and vice versa."""
+    from scipy.sparse.csgraph import shortest_path
+
+    s, x, y = _first_iterate("test1", 2)
+    R = FreeBoundaryRelaxation(s)
+    active = s.constraint_weight * s.gap(x) <= y
+    edge = R.boundary(active)
+    G = R.G.tocsr()
+    nb = [G.indices[G.indptr[i]:G.indptr[i + 1]] for i in range(G.shape[0])]
+    expect = [i for i in range(G.shape[0]) if any(active[j] != active[i] for j in nb[i])]
+    np.testing.assert_array_equal(edge, expect)
+    dist = shortest_path(G, unweighted=True, indices=edge).min(axis=0)
+    for L in (0, 1, 3):
+        np.testing.assert_array_equal(R.band(edge, L), np.flatnonzero(dist <= L))
