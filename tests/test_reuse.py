@@ -201,3 +201,40 @@ def test_systems_declare_whether_the_newton_loop_may_reuse_factorizations():
     assert any(h.linear_path == 1 for h in semismooth_newton(s, x0, y0, NewtonOptions()).history[1:])
     s.factor_reuse = False  # the loop reads the declaration
     assert all(h.linear_path == 0 for h in semismooth_newton(s, x0, y0, NewtonOptions()).history[1:])
+
+
+def _flipped(s, x0, y0, nflip):
+    """The linearization at (x0, y0) and one with ``nflip`` active rows made inactive."""
+    g = s.gap(x0)
+    C = np.minimum(g, y0)
+    Ca, Cb = (g <= y0).astype(float), (g > y0).astype(float)
+    Ca2, Cb2 = Ca.copy(), Cb.copy()
+    rows = np.flatnonzero(Ca)[:nflip]
+    Ca2[rows], Cb2[rows] = 0.0, 1.0
+    return s.linearize(x0, y0, C, Ca, Cb), s.linearize(x0, y0, C, Ca2, Cb2)
+
+
+def test_pcg_gets_twice_the_changed_rows_plus_a_slack_and_stops_after_a_failure(monkeypatch):
+    s = _obstacle(16)
+    x0, y0 = _start(s, 0.02)
+    lin, lin2 = _flipped(s, x0, y0, 3)
+    # unrestricted: PCG needs a few iterations for the three changed rows
+    free = FactorReuse(s, time_fraction=None)
+    free.solve(lin)
+    _, path, its = free.solve(lin2)
+    assert path == "pcg" and its >= 2
+    # budget 2 * 3 + slack: with the slack chosen so that the budget is one iteration short, PCG gives up,
+    # the step is factorized, and no later step tries PCG again (even an unchanged system)
+    monkeypatch.setattr(FactorReuse, "ITER_SLACK", its - 1 - 2 * 3)
+    reuse = FactorReuse(s, time_fraction=None)
+    reuse.solve(lin)
+    z, path, its2 = reuse.solve(lin2)
+    assert path == "pcg-failed" and its2 == its - 1 and reuse.failed == 1
+    np.testing.assert_allclose(z, SPDSolver(lin2.A).solve(lin2.b), rtol=1e-10, atol=1e-14 * np.abs(z).max())
+    _, path, _ = reuse.solve(lin2)
+    assert path == "factor"
+    # with the budget just met, the same attempt converges and later attempts go on
+    monkeypatch.setattr(FactorReuse, "ITER_SLACK", its - 2 * 3)
+    reuse = FactorReuse(s, time_fraction=None)
+    reuse.solve(lin)
+    assert reuse.solve(lin2)[1] == "pcg" and reuse.solve(lin2)[1] == "pcg" and reuse.failed == 0

@@ -71,16 +71,20 @@ class FactorReuse:
     an SPD matrix) and a positive diagonal, hence SPD, and M - A has rank
     O(#changed rows) (Schur complement onto the common unknowns, rank-2
     couplings of new unknowns, rank-2 master updates of eliminated slaves),
-    so CG ends in O(#changed) iterations.  It runs to ``||b - A z|| <= rtol
-    ||b||`` on the true residual, or to the rounding floor of a direct solve
-    (:func:`~ngcontact.algebra.linalg.pcg`), i.e. to direct-solver accuracy:
-    the exact-Newton iterates are unchanged up to rounding, which the
-    estimators' flux reconstruction needs (it inherits the residual).  If
-    PCG does not converge within ``maxiter`` iterations or ``time_fraction``
+    so CG ends in O(#changed) iterations (rank + 1 in exact arithmetic).  It
+    runs to ``||b - A z|| <= rtol ||b||`` on the true residual, or to the
+    rounding floor of a direct solve (:func:`~ngcontact.algebra.linalg.pcg`),
+    i.e. to direct-solver accuracy: the exact-Newton iterates are unchanged
+    up to rounding, which the estimators' flux reconstruction needs (it
+    inherits the residual).  If PCG does not converge within
+    ``min(maxiter, 2 #changed + ITER_SLACK)`` iterations or ``time_fraction``
     times the time the reused factorization took (only when that was >=
     TIME_CAP_FROM seconds, so that small systems take deterministic paths),
     the step is factorized afresh (and that factorization is kept for the
-    next steps).
+    next steps).  After ``MAX_FAILED`` such failures no further PCG is tried:
+    rounding then spoils the low-rank argument (ill-conditioned systems,
+    e.g. P3 on graded meshes, where a fresh factorization is the cheaper
+    solve).
 
     Cost model: a PCG iteration costs one solve with the factor and one
     product with A, a small fraction of a factorization on large 2D
@@ -96,7 +100,13 @@ class FactorReuse:
     """
 
     #: the time cap applies only if the reused factorization took at least this long [s]
-    TIME_CAP_FROM = 0.5
+    TIME_CAP_FROM = 0.05
+
+    #: PCG iterations allowed beyond twice the changed rows (rank of M - A <= 2 #changed)
+    ITER_SLACK = 10
+
+    #: failed PCG attempts after which every later step is factorized
+    MAX_FAILED = 1
 
     #: fixed-pattern mode: the assumed cost of a numeric refactorization relative to the first
     #: (symbolic + numeric) factorization
@@ -124,6 +134,7 @@ class FactorReuse:
         self._rows = None  # (eq, mixed, w) of the factorized step
         self._index = None  # full indices of its reduced unknowns
         self._t_factor = 0.0
+        self.failed = 0  # PCG attempts that did not converge
 
     def changed_rows(self, lin: "LinearizedStep") -> Optional[int]:
         """Constraint rows whose contribution to A differs from the factorized step (None: nothing to
@@ -139,17 +150,18 @@ class FactorReuse:
         :data:`~ngcontact.algebra.system.LINEAR_PATHS` (see the class docstring)."""
         changed = self.changed_rows(lin)
         path, its = "factor", 0
-        if changed is not None and changed <= self.max_changed:
+        if changed is not None and changed <= self.max_changed and self.failed < self.MAX_FAILED:
             t0 = time.perf_counter()
             deadline = None  # time cap only where it matters: deterministic paths on small systems
             if self.time_fraction is not None and self._t_factor >= self.TIME_CAP_FROM:
                 t_next = self._t_factor * (self.NUMERIC_FRACTION if self._symbolic_in_t_factor else 1.0)
                 deadline = t0 + self.time_fraction * t_next
-            res = pcg(lin.A, lin.b, self._preconditioner(lin), z0, rtol=self.rtol, maxiter=self.maxiter,
-                      deadline=deadline)
+            res = pcg(lin.A, lin.b, self._preconditioner(lin), z0, rtol=self.rtol,
+                      maxiter=min(self.maxiter, 2 * changed + self.ITER_SLACK), deadline=deadline)
             its = res.iterations
             if res.converged:
                 return res.x, "pcg", its
+            self.failed += 1
             path = "pcg-failed"
         self._solver = None  # free the old factor first: never two factors in memory
         t0 = time.perf_counter()
