@@ -189,7 +189,8 @@ class Integrals:
 
     def ew(self, cf, dxx=None) -> np.ndarray:
         """Element-wise integrals of cf (default measure ``dxq``)."""
-        return Integrate(cf * (self.dxq if dxx is None else dxx), self.mesh, element_wise=True).NumPy().copy()
+        return Integrate(cf.Compile() * (self.dxq if dxx is None else dxx), self.mesh,
+                         element_wise=True).NumPy().copy()
 
 
 def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None, fl_rule=None):
@@ -335,7 +336,7 @@ def contact_work(ig: Integrals, fields, grads, corr, gcorr) -> float:
     cf = CoefficientFunction(0.0)
     for c, fd, gu in zip(coef, fields, grads):
         cf = cf + c * (fd.mu * InnerProduct(gu, gcorr) - fd.f * corr)
-    return float(Integrate(cf * ig.dxq, ig.mesh))
+    return float(Integrate(cf.Compile() * ig.dxq, ig.mesh))
 
 
 def direct_root(A: float, B: float) -> float:
