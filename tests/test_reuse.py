@@ -238,3 +238,28 @@ def test_pcg_gets_twice_the_changed_rows_plus_a_slack_and_stops_after_a_failure(
     reuse = FactorReuse(s, time_fraction=None)
     reuse.solve(lin)
     assert reuse.solve(lin2)[1] == "pcg" and reuse.solve(lin2)[1] == "pcg" and reuse.failed == 0
+
+
+def test_pcg_is_not_tried_when_its_iterations_cannot_beat_a_factorization(monkeypatch):
+    """Above TIME_CAP_FROM, the kept factorization's solve time prices a PCG iteration: if 2 #changed + 1 of
+    them cost more than the next factorization, the step is factorized without an attempt."""
+    s = _obstacle(16)
+    x0, y0 = _start(s, 0.02)
+    lin, lin2 = _flipped(s, x0, y0, 3)
+    monkeypatch.setattr(FactorReuse, "TIME_CAP_FROM", 0.0)
+
+    def kept(solve_share):
+        """A FactorReuse with lin factorized, its solve priced at solve_share x the next factorization / 7."""
+        r = FactorReuse(s)
+        r.solve(lin)
+        t_next = r._t_factor * (r.NUMERIC_FRACTION if r._symbolic_in_t_factor else 1.0)
+        r._t_solve = solve_share * t_next / (2 * 3 + 1)
+        return r
+
+    reuse = kept(1.01)
+    assert reuse._attempt(3) is None and reuse._attempt(0) is not None
+    z, path, its = reuse.solve(lin2)
+    assert path == "factor" and its == 0 and reuse.failed == 0
+    np.testing.assert_allclose(z, SPDSolver(lin2.A).solve(lin2.b), rtol=1e-10, atol=1e-14 * np.abs(z).max())
+    reuse = kept(0.99)
+    assert reuse._attempt(3) is not None

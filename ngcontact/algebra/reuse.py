@@ -81,7 +81,9 @@ class FactorReuse:
     times the time the reused factorization took (only when that was >=
     TIME_CAP_FROM seconds, so that small systems take deterministic paths),
     the step is factorized afresh (and that factorization is kept for the
-    next steps).  After ``MAX_FAILED`` such failures no further PCG is tried:
+    next steps); where that time cap applies and not even 2 #changed + 1
+    solves with the kept factorization (measured when it was made) fit in
+    it, PCG is not tried.  After ``MAX_FAILED`` such failures no further PCG is tried:
     rounding then spoils the low-rank argument (ill-conditioned systems,
     e.g. P3 on graded meshes, where a fresh factorization is the cheaper
     solve).
@@ -134,6 +136,7 @@ class FactorReuse:
         self._rows = None  # (eq, mixed, w) of the factorized step
         self._index = None  # full indices of its reduced unknowns
         self._t_factor = 0.0
+        self._t_solve = 0.0  # one solve with the kept factorization
         self.failed = 0  # PCG attempts that did not converge
 
     def changed_rows(self, lin: "LinearizedStep") -> Optional[int]:
@@ -148,16 +151,11 @@ class FactorReuse:
     def solve(self, lin: "LinearizedStep", z0: Optional[np.ndarray] = None):
         """(z, path, PCG iterations) for A z = b of ``lin``; ``path`` in
         :data:`~ngcontact.algebra.system.LINEAR_PATHS` (see the class docstring)."""
-        changed = self.changed_rows(lin)
         path, its = "factor", 0
-        if changed is not None and changed <= self.max_changed and self.failed < self.MAX_FAILED:
-            t0 = time.perf_counter()
-            deadline = None  # time cap only where it matters: deterministic paths on small systems
-            if self.time_fraction is not None and self._t_factor >= self.TIME_CAP_FROM:
-                t_next = self._t_factor * (self.NUMERIC_FRACTION if self._symbolic_in_t_factor else 1.0)
-                deadline = t0 + self.time_fraction * t_next
-            res = pcg(lin.A, lin.b, self._preconditioner(lin), z0, rtol=self.rtol,
-                      maxiter=min(self.maxiter, 2 * changed + self.ITER_SLACK), deadline=deadline)
+        attempt = self._attempt(self.changed_rows(lin))
+        if attempt is not None:
+            maxiter, deadline = attempt
+            res = pcg(lin.A, lin.b, self._preconditioner(lin), z0, rtol=self.rtol, maxiter=maxiter, deadline=deadline)
             its = res.iterations
             if res.converged:
                 return res.x, "pcg", its
@@ -175,7 +173,25 @@ class FactorReuse:
         self._key = _MatrixKey(lin.system)
         self._rows = (lin.eq.copy(), lin.mixed.copy(), lin.w.copy())
         self._index = np.flatnonzero(lin.keep)
-        return self._solver.solve(lin.b), path, its
+        t0 = time.perf_counter()
+        z = self._solver.solve(lin.b)
+        self._t_solve = time.perf_counter() - t0
+        return z, path, its
+
+    def _attempt(self, changed: Optional[int]):
+        """(maxiter, deadline) of a PCG attempt with ``changed`` rows changed since the kept factorization, or
+        None: factorize (nothing kept, too many changes, an earlier attempt failed, or a budget too small)."""
+        if changed is None or changed > self.max_changed or self.failed >= self.MAX_FAILED:
+            return None
+        deadline = None  # time cap only where it matters: deterministic paths on small systems
+        if self.time_fraction is not None and self._t_factor >= self.TIME_CAP_FROM:
+            t_next = self._t_factor * (self.NUMERIC_FRACTION if self._symbolic_in_t_factor else 1.0)
+            # a PCG iteration costs at least one solve with the factor: when not even the 2 #changed + 1
+            # iterations of the exact-arithmetic bound fit in the time of a factorization, factorize at once
+            if self.time_fraction * t_next < (2 * changed + 1) * self._t_solve:
+                return None
+            deadline = time.perf_counter() + self.time_fraction * t_next
+        return min(self.maxiter, 2 * changed + self.ITER_SLACK), deadline
 
     def _factor_fixed(self, lin: "LinearizedStep"):
         """Numeric refactorization in K's pattern; returns an object solving the reduced system."""
