@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integrate, InnerProduct, LinearForm, TaskManager,
                      dx, grad)
 
+from ..algebra.linalg import SPDSolver
 from ..algebra.multigrid import field_prolongation, p1_prolongation
 from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
@@ -98,7 +99,7 @@ class FEMDiscretization(Discretization):
         self.constraints = constraints
         t0 = time.perf_counter()
         self.problem, self.order, self.quad_bonus = problem, order, quad_bonus
-        self._mass = self._mass_lu = None  # nodal mass matrix and its LU factors, built on first use
+        self._mass = self._mass_solver = None  # nodal mass matrix and its factorization, built on first use
         # an ArrayMesh stays arrays while P1 needs nothing else (class docstring)
         arrays = mesh if isinstance(mesh, ArrayMesh) else None
         if arrays is not None and not (order == 1 and constraints != "bernstein"
@@ -303,16 +304,15 @@ class FEMDiscretization(Discretization):
         if self.order == 1:
             out["lam"] = rhs  # lam_h(a) = X3_a, zero on the boundary
         else:  # lam_h = sum_l X3_l Theta_l:  M Lambda = [X3; 0]
-            out["lam"] = self.mass_nodal_lu().solve(rhs)
+            out["lam"] = self.mass_nodal_solver().solve(rhs)
         return out
 
-    def mass_nodal_lu(self):
-        """LU factors of :meth:`mass_nodal` (factorized once: every Newton iterate and estimate reuses them)."""
-        if self._mass_lu is None:
-            import scipy.sparse.linalg as spla
-
-            self._mass_lu = spla.splu(self.mass_nodal().tocsc())
-        return self._mass_lu
+    def mass_nodal_solver(self):
+        """A solver of :meth:`mass_nodal` (sparse Cholesky, factorized once: every Newton iterate and estimate
+        reuses it; ``solve(b)``)."""
+        if self._mass_solver is None:
+            self._mass_solver = SPDSolver(self.mass_nodal())
+        return self._mass_solver
 
     def gridfunctions(self, x, y) -> dict:
         """GridFunctions u1, u2 (or u), lam and the gap u1 - u2 (or u - psi)."""

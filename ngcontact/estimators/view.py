@@ -168,7 +168,7 @@ class DiscretizationView:
     def dual_function(self, values: np.ndarray, name: str = "") -> GridFunction:
         """The function r_h of ``fes`` with (r_h, phi_l) = values_l at the interior nodes, r_h = 0 at the
         boundary nodes (dual basis; the Lagrange mass matrix is factorized once by the discretization)."""
-        return self.function(self._disc.mass_nodal_lu().solve(self.extend(values)), name)
+        return self.function(self._disc.mass_nodal_solver().solve(self.extend(values)), name)
 
 
 @dataclass(frozen=True, eq=False)
