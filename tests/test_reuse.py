@@ -233,6 +233,11 @@ def test_pcg_gets_twice_the_changed_rows_plus_a_slack_and_stops_after_a_failure(
     np.testing.assert_allclose(z, SPDSolver(lin2.A).solve(lin2.b), rtol=1e-10, atol=1e-14 * np.abs(z).max())
     _, path, _ = reuse.solve(lin2)
     assert path == "factor"
+    # a new Newton run (e.g. the next time step sharing the factorization) tries again
+    reuse.new_run()
+    monkeypatch.setattr(FactorReuse, "ITER_SLACK", 10)
+    _, path, its3 = reuse.solve(lin2)
+    assert path == "pcg" and its3 <= 1  # lin2 itself is the kept factorization now
     # with the budget just met, the same attempt converges and later attempts go on
     monkeypatch.setattr(FactorReuse, "ITER_SLACK", its - 2 * 3)
     reuse = FactorReuse(s, time_fraction=None)
@@ -263,3 +268,10 @@ def test_pcg_is_not_tried_when_its_iterations_cannot_beat_a_factorization(monkey
     np.testing.assert_allclose(z, SPDSolver(lin2.A).solve(lin2.b), rtol=1e-10, atol=1e-14 * np.abs(z).max())
     reuse = kept(0.99)
     assert reuse._attempt(3) is not None
+
+
+def test_pcg_with_no_iterations_allowed_returns_the_start_unconverged():
+    s = _obstacle(8)
+    A, b = s.K, s.F
+    res = pcg(A, b, lambda r: r / A.diagonal(), maxiter=0)
+    assert not res.converged and res.iterations == 0 and np.array_equal(res.x, np.zeros_like(b))

@@ -191,6 +191,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
         return PCGResult(x, 0, True, rnorm / bnorm)
     z = M(r)
     p, rz = z.copy(), float(r @ z)
+    k = 0
     for k in range(1, maxiter + 1):
         q = A @ p
         pq = float(p @ q)

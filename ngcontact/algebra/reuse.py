@@ -83,7 +83,9 @@ class FactorReuse:
     the step is factorized afresh (and that factorization is kept for the
     next steps); where that time cap applies and not even 2 #changed + 1
     solves with the kept factorization (measured when it was made) fit in
-    it, PCG is not tried.  After ``MAX_FAILED`` such failures no further PCG is tried:
+    it, PCG is not tried.  After ``MAX_FAILED`` such failures no further PCG is tried
+    in this Newton run (:meth:`new_run` starts the count afresh for a FactorReuse shared
+    by several runs, e.g. the time steps of :mod:`ngcontact.timestepping`):
     rounding then spoils the low-rank argument (ill-conditioned systems,
     e.g. P3 on graded meshes, where a fresh factorization is the cheaper
     solve).
@@ -138,6 +140,10 @@ class FactorReuse:
         self._t_factor = 0.0
         self._t_solve = 0.0  # one solve with the kept factorization
         self.failed = 0  # PCG attempts that did not converge
+
+    def new_run(self) -> None:
+        """A new Newton run starts: failed PCG attempts of earlier runs no longer count."""
+        self.failed = 0
 
     def changed_rows(self, lin: "LinearizedStep") -> Optional[int]:
         """Constraint rows whose contribution to A differs from the factorized step (None: nothing to

@@ -88,6 +88,8 @@ class DirectSolve:
 class _DirectSession:
     def __init__(self, system, reuse):
         self.system, self.reuse = system, reuse
+        if reuse is not None:
+            reuse.new_run()
 
     @property
     def can_refresh(self) -> bool:
