@@ -108,6 +108,23 @@ def _save(fig, png: Path) -> Path:
     return png
 
 
+def _cycle_cost(runs, scene, present, last: int = 3) -> list:
+    """Markdown lines: solve and estimation time of the last ``last`` levels of every adaptive run of ``scene``
+    (an adaptive cycle needs both; the ratio estimate / solve is the cost of adaptivity)."""
+    out = []
+    for m, p in present:
+        rows = runs[f"{scene}-{m}-p{p}"][0] if m == "adaptive" else []
+        for r in rows[-last:]:
+            if not out:
+                out = [f"Adaptive cycle cost on the last {last} levels (solve: the Newton solve; estimate: flux "
+                       "reconstruction and bound):", "", "| adaptive | ndof | solve [s] | estimate [s] | estimate / solve |",
+                       "|---|---|---|---|---|"]
+            ts, te = r.get("time_solve_s"), r.get("time_estimate_s")
+            ratio = te / ts if ts and te is not None else None
+            out.append(md_row([f"P{p}", int(r["ndof"]), fmt(ts, ".2f"), fmt(te, ".2f"), fmt(ratio, ".2f")]))
+    return out + [""] if out else []
+
+
 def write_report(runs_dir, out_md, fig_dir) -> Path:
     """Read the sweep's run directories, write the plots and the markdown report."""
     import matplotlib
@@ -230,6 +247,7 @@ def write_report(runs_dir, out_md, fig_dir) -> Path:
                     if s == scene:
                         md.append(f"| P{p} | " + " ".join(f"{v:.2f}" for v in ie) + " |")
                 md.append("")
+        md += _cycle_cost(runs, scene, present)
         # last adapted meshes
         pics = []
         for p in ORDERS:
