@@ -61,6 +61,7 @@ from .boundary import boundary_nodal_values, boundary_vertex_values, residual_mu
 from .moments import data_rules, vertex_function_values, vertex_moment_term, vertex_rule
 from .multipliers import ContactMultiplier, PatchContactMultiplier, ShapedContactMultiplier, multiplier_p1
 from .options import MULTIPLIERS, EstimatorOptions
+from .mixed_blocks import AffineTriangles, flux_operators, mixed_element_blocks
 from .patches import PatchSolver
 from .view import DiscretizationView, FieldData, SolutionView
 
@@ -173,7 +174,10 @@ def patch_solver(dv: DiscretizationView, q: int) -> PatchSolver:
     key = ("patch_solver", int(q))
     if key not in c:
         _, X, bf, _ = _mixed_patch_problem(dv.mesh, q, 0.0)  # the eps -> 0 limit, exactly (.patches)
-        c[key] = PatchSolver(dv.mesh, X, bf, dv.element_vertices())
+        # straight triangles: the element blocks from reference matrices, not from an assembly of the form
+        tri = None if dv.curved else AffineTriangles.of(dv.mesh)
+        c[key] = PatchSolver(dv.mesh, X, bf, dv.element_vertices(), blocks=mixed_element_blocks(tri, X, q),
+                             affine=tri)
     return c[key]
 
 
@@ -278,8 +282,12 @@ def _flux_operator(solver: PatchSolver, d: PatchData):
     def form_of_hat(hat):
         return _times(hat, _flux_terms(trial, tau, w, 1.0, hessian, bonus))
 
+    def reference(solver):  # straight triangles: from reference matrices (.mixed_blocks), else None
+        q = int(solver.X.components[1].globalorder)
+        return flux_operators(solver.affine, solver.Y, q, space, hessian)
+
     key = ("flux", id(space), space.ndof, hessian, bonus)
-    return key, space, form_of_hat, d.u.vec.FV().NumPy(), float(d.mu)
+    return key, space, form_of_hat, d.u.vec.FV().NumPy(), float(d.mu), reference
 
 
 def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver: Optional[PatchSolver] = None):

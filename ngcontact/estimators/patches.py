@@ -3,10 +3,11 @@ r"""Batched vertex-patch solver for the hybridized mixed patch problems of :mod:
 Same problems and same result as NGSolve's ``PatchwiseSolve`` (broken RT_q x P_q x facet P_q, every
 right-hand side term multiplied by the hat function psi_a of the patch), computed differently:
 
-1. the bilinear form is assembled ONCE on the whole mesh.  Its only inter-element coupling is the
-   facet multiplier, whose facet-facet block is zero, so the element matrix of K is the global
-   matrix restricted to the dofs of K (RT and P_q dofs of K are element-local, the facet dofs of
-   its edges couple only through the <tau.n, m> terms of K);
+1. the element matrices of the bilinear form: on straight triangles from reference matrices (only the RT
+   mass block depends on the shape of K, :mod:`.mixed_blocks`); otherwise the form is assembled ONCE on
+   the whole mesh.  Its only inter-element coupling is the facet multiplier, whose facet-facet block is
+   zero, so the element matrix of K is the global matrix restricted to the dofs of K (RT and P_q dofs
+   of K are element-local, the facet dofs of its edges couple only through the <tau.n, m> terms of K);
 2. per element, the interior unknowns I = (RT_q(K), P_q(K)) are condensed once:
    S_K = -A_FI A_II^{-1} A_IF on the 3(q + 1) facet dofs of K (batched LU of ne small matrices);
 3. the right-hand side of patch a on K is the element vector of the linear form with psi_a, i.e.
@@ -23,7 +24,8 @@ of the patch matrices (formed from the third call on, kept while they fit in
 :attr:`PatchSolver.CACHE_BYTES`), and the parts
 of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
 :mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
-(:meth:`PatchSolver.operators`), so a new u_h costs three sparse products instead of three
+(:meth:`PatchSolver.operators`; on straight triangles from reference matrices,
+:func:`.mixed_blocks.flux_operators`), so a new u_h costs three sparse products instead of three
 assemblies with the Hessian and element-boundary terms; likewise the FE-mass-rule sources linear in a
 GridFunction (``PatchData.mass`` of :mod:`.flux`), and the load part of the sources is assembled once
 per load object (:meth:`PatchSolver.fixed_vectors`).
@@ -60,6 +62,40 @@ def _scatter_add(shape, flat_index, values) -> np.ndarray:
     return np.bincount(flat_index.ravel(), weights=values.ravel(), minlength=n).reshape(shape)
 
 
+def _assembled_blocks(X, bf, ne: int, nV: int, nQ: int):
+    """(A_II, A_VF, facet dofs) of every element from NGSolve's assembly of ``bf`` on the whole mesh (the
+    general path; :mod:`.mixed_blocks` builds them from reference matrices on straight triangles)."""
+    V, Q, F = X.components
+    nI = nV + nQ
+    offQ, offF = V.ndof, V.ndof + Q.ndof
+    form = BilinearForm(X)
+    form += bf
+    with TaskManager():
+        form.Assemble()
+    # views of the CSR arrays (no copy: ~20M entries at 1e5 dofs); ``form`` stays alive meanwhile
+    data, indices, indptr = (np.asarray(a) for a in form.mat.CSR())
+    # V rows (then Q rows) are consecutive, element by element, and each holds the element pattern:
+    # the dofs of K (V_K, Q_K contiguous, then its facet dofs, sorted) -> reshape the CSR arrays
+    lens = np.diff(indptr[:offF + 1])
+    nrow = int(lens[0])
+    if not np.all(lens == nrow):
+        raise ValueError("unexpected sparsity pattern of the patch bilinear form")
+    nF3 = nrow - nI
+    cols = indices[:offQ * nrow].reshape(ne, nV, nrow)
+    base = (np.arange(ne) * nV)[:, None]
+    expect = np.concatenate([base + np.arange(nV), offQ + (np.arange(ne) * nQ)[:, None] + np.arange(nQ)], axis=1)
+    if not (np.array_equal(cols[:, :nV, :nI], np.broadcast_to(expect[:, None, :], (ne, nV, nI)))
+            and np.all(np.diff(cols[:, 0, :], axis=1) > 0)):
+        raise ValueError("unexpected column order of the patch bilinear form")
+    dataV = data[:offQ * nrow].reshape(ne, nV, nrow)
+    dataQ = data[offQ * nrow:offF * nrow].reshape(ne, nQ, nrow)[:, :, :nI]
+    A_II = np.empty((ne, nI, nI))
+    A_II[:, :nV, :] = dataV[:, :, :nI]
+    A_II[:, nV:, :] = dataQ
+    A_VF = dataV[:, :, nI:].copy()                             # A_IF = [A_VF; 0] (no Q-F coupling)
+    return A_II, A_VF, cols[:, 0, nI:].copy()                  # facet dofs of K, sorted
+
+
 class PatchSolver:
     """Batched solver of the patch problems of one mesh and one hybridized bilinear form.
 
@@ -73,10 +109,16 @@ class PatchSolver:
         the patch bilinear form (symmetric).
     ev : ndarray (ne, 3)
         vertex numbers of every element in the local order of ``Discontinuous(H1(order=1))``.
+    blocks : tuple, optional
+        (A_II, A_VF, facet dofs) of every element, e.g. from :func:`.mixed_blocks.mixed_element_blocks`
+        (None: from the assembly of ``bf``).
+    affine : AffineTriangles, optional
+        the affine element maps (:mod:`.mixed_blocks`), for operators built from reference matrices.
     """
 
-    def __init__(self, mesh, X, bf, ev):
+    def __init__(self, mesh, X, bf, ev, blocks=None, affine=None):
         self.mesh, self.X = mesh, X
+        self.affine = affine  # .mixed_blocks.AffineTriangles of the mesh, or None
         V, Q, F = X.components
         self.Y = V * Q  # right-hand sides: the facet rows are zero
         zf = GridFunction(F)
@@ -94,32 +136,8 @@ class PatchSolver:
             raise ValueError("broken RT and L2 spaces with the same number of dofs per element expected")
         nI = nV + nQ
         offQ, offF = V.ndof, V.ndof + Q.ndof
-        form = BilinearForm(X)
-        form += bf
-        with TaskManager():
-            form.Assemble()
-        # views of the CSR arrays (no copy: ~20M entries at 1e5 dofs); ``form`` stays alive meanwhile
-        data, indices, indptr = (np.asarray(a) for a in form.mat.CSR())
-        # V rows (then Q rows) are consecutive, element by element, and each holds the element pattern:
-        # the dofs of K (V_K, Q_K contiguous, then its facet dofs, sorted) -> reshape the CSR arrays
-        lens = np.diff(indptr[:offF + 1])
-        nrow = int(lens[0])
-        if not np.all(lens == nrow):
-            raise ValueError("unexpected sparsity pattern of the patch bilinear form")
-        nF3 = nrow - nI
-        cols = indices[:offQ * nrow].reshape(ne, nV, nrow)
-        base = (np.arange(ne) * nV)[:, None]
-        expect = np.concatenate([base + np.arange(nV), offQ + (np.arange(ne) * nQ)[:, None] + np.arange(nQ)], axis=1)
-        if not (np.array_equal(cols[:, :nV, :nI], np.broadcast_to(expect[:, None, :], (ne, nV, nI)))
-                and np.all(np.diff(cols[:, 0, :], axis=1) > 0)):
-            raise ValueError("unexpected column order of the patch bilinear form")
-        dataV = data[:offQ * nrow].reshape(ne, nV, nrow)
-        dataQ = data[offQ * nrow:offF * nrow].reshape(ne, nQ, nrow)[:, :, :nI]
-        fdofs = cols[:, 0, nI:].copy()                             # (ne, nF3) facet dofs of K
-        A_II = np.empty((ne, nI, nI))
-        A_II[:, :nV, :] = dataV[:, :, :nI]
-        A_II[:, nV:, :] = dataQ
-        A_VF = dataV[:, :, nI:].copy()                             # A_IF = [A_VF; 0] (no Q-F coupling)
+        A_II, A_VF, fdofs = blocks if blocks is not None else _assembled_blocks(X, bf, ne, nV, nQ)
+        nF3 = fdofs.shape[1]
         self.A_II = A_II
         self.W = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ne, nQ, nF3))], axis=1))  # A_II^{-1} A_IF
         S_K = -np.einsum("kvf,kvg->kfg", A_VF, self.W[:, :nV, :])  # -A_FI A_II^{-1} A_IF
@@ -184,13 +202,18 @@ class PatchSolver:
     #: memory allowed for the cached inverses of the patch matrices (else rebuilt in every call)
     CACHE_BYTES = 2 * 1024 ** 3
 
-    def operators(self, key, space, form_of_hat):
+    def operators(self, key, space, form_of_hat, reference=None):
         """The three sparse matrices (Y.ndof x space.ndof) of the bilinear forms
         ``form_of_hat(hat_i)`` (trial functions of ``space``, test functions of ``self.Y``),
-        assembled once per ``key`` and kept."""
+        built once per ``key`` and kept: by ``reference(self)`` (the same matrices by other means, e.g.
+        :func:`.mixed_blocks.flux_operators`) unless it is None or returns None, else assembled."""
         from scipy.sparse import csr_matrix
 
         if key not in self._ops:
+            mats = reference(self) if reference is not None else None
+            if mats is not None:
+                self._ops[key] = (space, mats)
+                return mats
             mats = []
             with TaskManager():
                 for hat in self.hats:
@@ -296,8 +319,8 @@ class PatchSolver:
             ``self.Y`` = V x Q (test functions of Y) with every integrand multiplied by hat.
         linear : list of (tuple, list of tuples or None), optional
             per field, further right-hand side parts ``(key, space, form_of_hat, coefficients,
-            scale)``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
-            form_of_hat)[i].
+            scale[, reference])``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
+            form_of_hat[, reference])[i].
         vertex : list of (list or None), optional
             per field, source terms ``(values, bonus, shape)``: patch a sees -(psi_a g_a, w) with
             g_a|_K = values[K, i] for the local vertex i of K that is a (values (ne, 3)), i.e. the
@@ -322,7 +345,7 @@ class PatchSolver:
         with TaskManager():
             for f, (lf_of_hat, lin, fix) in enumerate(zip(lfs, linear, fixed)):
                 lins = [] if lin is None else (lin if isinstance(lin, list) else [lin])
-                mats = [self.operators(*part[:3]) for part in lins]
+                mats = [self.operators(*part[:3], *part[5:6]) for part in lins]
                 kept = self.fixed_vectors(*fix) if fix is not None else None
                 for i, hat in enumerate(self.hats):
                     vec = np.zeros(self.Y.ndof) if kept is None else kept[i].copy()

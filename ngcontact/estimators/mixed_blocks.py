@@ -1,0 +1,253 @@
+r"""Element blocks of the hybridized mixed patch form on straight triangles, from reference matrices.
+
+The patch problems of :mod:`.flux` use the form (broken RT_q x P_q x facet P_q, eps = 0)
+
+    (s, tau)_K - (r, div tau)_K - (div s, w)_K + <s.n, v>_dK + <tau.n, m>_dK,
+
+and :class:`.patches.PatchSolver` needs, per element K, the interior block A_II (RT_q and P_q dofs of K),
+the RT-facet block A_VF and the facet dofs of K.  On a straight triangle only the RT mass block depends on
+the shape of K: with the affine map x = x_0 + B xi from the triangle (0,0), (1,0), (0,1) and the contravariant
+Piola map tau = B tau^ / det B,
+
+    (s, tau)_K = sum_{a,b} G_ab R_ab,   G = B^T B / |det B|,   R_ab = (s^_a, tau^_b) on the reference triangle,
+
+while the divergence and facet blocks are those of the reference triangle (det B > 0).  NGSolve's high-order
+basis on K depends on the order of the global numbers of its three vertices (edge and cell orientation),
+so the reference matrices are computed once per degree q and per ranking of the local vertices (six), by
+assembling the form on a one-triangle mesh whose vertices are numbered in that ranking.
+
+The hat-weighted flux operators of the patch right-hand sides (:func:`flux_operators`, trial space H1 of
+degree p) transform the same way: their RT rows are reference rows, their P_q rows a combination of two
+reference matrices per element.
+
+Element matrices and operators from here and from NGSolve's assembly agree to rounding
+(``tests/test_mixed_blocks.py``); :class:`AffineTriangles` is None where the premises do not hold (curved
+elements, a triangle with det B <= 0), the functions return None then or for another dof layout, and the
+caller assembles instead.  Cost: a few array operations per element, against NGSolve's assembly of the whole
+form on the mesh (the graph and CSR arrays of ~(4q + 10)^2 entries per element: 29e6 entries for q = 3 at
+14e3 triangles) and three assemblies per operator.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Dict, Optional, Tuple
+
+import numpy as np
+from ngsolve import (H1, HDiv, L2, BilinearForm, CoefficientFunction, ElementId, FacetFESpace, Mesh, VOL, div, dx,
+                     grad, specialcf, x, y)
+
+__all__ = ["AffineTriangles", "mixed_element_blocks", "flux_operators", "reference_blocks", "RANKINGS"]
+
+#: rankings of the global numbers of a triangle's local vertices 0, 1, 2 (rank 0: the smallest number)
+RANKINGS = tuple(itertools.permutations(range(3)))
+_REF = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+_cache: Dict[int, tuple] = {}
+
+
+def _spaces(mesh, q: int):
+    V = HDiv(mesh, order=q, RT=True, discontinuous=True)
+    Q = L2(mesh, order=q)
+    F = FacetFESpace(mesh, order=q)
+    return V, Q, F, V * Q * F
+
+
+def _one_triangle(ranking) -> Mesh:
+    """The reference triangle as a mesh whose local vertex k has global number ranking[k]."""
+    from netgen.csg import Pnt
+    from netgen.meshing import Element1D, Element2D, FaceDescriptor, MeshPoint
+    from netgen.meshing import Mesh as NGMesh
+
+    ng = NGMesh(dim=2)
+    pid = {}
+    for k in np.argsort(ranking):  # points are numbered in the order they are added
+        pid[int(k)] = ng.Add(MeshPoint(Pnt(_REF[k, 0], _REF[k, 1], 0.0)))
+    ng.Add(FaceDescriptor(bc=1, domin=1, surfnr=1))
+    ng.Add(Element2D(1, [pid[0], pid[1], pid[2]]))
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        ng.Add(Element1D([pid[a], pid[b]], index=1))
+    return Mesh(ng)
+
+
+def _element_matrix(trial, test, integrand) -> np.ndarray:
+    """The element matrix (test dofs x trial dofs, local order) of ``integrand`` on a one-triangle mesh."""
+    bf = BilinearForm(trial, test) if trial is not test else BilinearForm(trial)
+    bf += integrand
+    bf.Assemble()
+    rows, cols = (np.array(s.GetDofNrs(ElementId(VOL, 0))) for s in (test, trial))
+    dense = np.zeros((test.ndof, trial.ndof))
+    data, indices, indptr = (np.asarray(a) for a in bf.mat.CSR())
+    for i in range(test.ndof):
+        dense[i, indices[indptr[i]:indptr[i + 1]]] = data[indptr[i]:indptr[i + 1]]
+    return dense[np.ix_(rows, cols)]
+
+
+def reference_blocks(q: int):
+    """Per ranking (index into :data:`RANKINGS`): R (3, n, n) -- the mass integrals with the coefficient
+    matrices e_0 e_0^T, e_1 e_1^T, e_0 e_1^T + e_1 e_0^T -- and C (n, n), the divergence and facet terms;
+    n = nV + nQ + nF3 in the local dof order of the product space.  Also (nV, nQ).  Computed once per q."""
+    q = int(q)
+    if q not in _cache:
+        Rs, Cs = [], []
+        for ranking in RANKINGS:
+            mesh = _one_triangle(ranking)
+            V, Q, F, X = _spaces(mesh, q)
+            (s, r, m), (tau, w, v) = X.TnT()
+            n = specialcf.normal(2)
+            R = []
+            for G in ((1, 0, 0, 0), (0, 0, 0, 1), (0, 1, 1, 0)):
+                Gc = CoefficientFunction(tuple(float(g) for g in G), dims=(2, 2))
+                R.append(_element_matrix(X, X, (Gc * s) * tau * dx))
+            Rs.append(np.array(R))
+            Cs.append(_element_matrix(X, X, (-r * div(tau) - div(s) * w) * dx
+                                      + (s * n * v + tau * n * m) * dx(element_boundary=True)))
+        _cache[q] = (np.array(Rs), np.array(Cs), (V.ndof, Q.ndof))
+    return _cache[q]
+
+
+def reference_flux_blocks(q: int, p: int):
+    """Per ranking: Ft (3, nV, nU) -- (psi_i grad u, tau) for the hat psi_i of local vertex i -- and E (2, nQ, nU) --
+    (d_b u, w) -- on the reference triangle, u in P_p (H1), tau in RT_q, w in P_q.  Computed once per (q, p)."""
+    key = ("flux", int(q), int(p))
+    if key not in _cache:
+        Fs, Es = [], []
+        hats = (1.0 - x - y, x, y)  # barycentric coordinates of the local vertices at (0,0), (1,0), (0,1)
+        for ranking in RANKINGS:
+            mesh = _one_triangle(ranking)
+            V, Q, _, _ = _spaces(mesh, q)
+            U = H1(mesh, order=int(p))
+            u, tau, w = U.TrialFunction(), V.TestFunction(), Q.TestFunction()
+            Fs.append(np.array([_element_matrix(U, V, hat * grad(u) * tau * dx(bonus_intorder=2)) for hat in hats]))
+            Es.append(np.array([_element_matrix(U, Q, grad(u)[b] * w * dx) for b in range(2)]))
+        _cache[key] = (np.array(Fs), np.array(Es))
+    return _cache[key]
+
+
+#: gradients of the reference hats (rows: local vertices 0, 1, 2)
+_HAT_GRADS = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
+
+
+@dataclass(frozen=True, eq=False)
+class AffineTriangles:
+    """The affine maps x = x_0 + B xi of the triangles of a mesh from the reference triangle (local vertex k at
+    (0,0), (1,0), (0,1)) and the ranking class of their vertex numbers; :meth:`of` gives None where the
+    reference matrices do not apply (module doc)."""
+
+    B: np.ndarray       # (ne, 2, 2)
+    det: np.ndarray     # (ne,)
+    cls: np.ndarray     # (ne,) index into RANKINGS
+
+    @classmethod
+    def of(cls, mesh) -> Optional["AffineTriangles"]:
+        ng = mesh.ngmesh
+        if ng.dim != 2 or ng.GetCurveOrder() > 1:
+            return None
+        nodes = ng.Elements2D().NumPy()["nodes"]
+        if len(nodes) != mesh.ne or (nodes.shape[1] > 3 and np.any(nodes[:, 3])):
+            return None
+        P = np.asarray(ng.Coordinates()[:, :2], dtype=float)
+        if len(P) != mesh.nv:
+            return None
+        ev = nodes[:, :3].astype(np.int64) - 1
+        xv = P[ev]                                                     # (ne, 3, 2)
+        B = np.stack([xv[:, 1] - xv[:, 0], xv[:, 2] - xv[:, 0]], axis=2)  # columns: images of (1,0), (0,1)
+        det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
+        if not np.all(det > 0):
+            return None
+        rank = np.argsort(np.argsort(ev, axis=1, kind="stable"), axis=1)
+        lookup = np.full(27, -1, dtype=np.int64)
+        for c, r in enumerate(RANKINGS):
+            lookup[r[0] * 9 + r[1] * 3 + r[2]] = c
+        return cls(B=B, det=det, cls=lookup[rank[:, 0] * 9 + rank[:, 1] * 3 + rank[:, 2]])
+
+    def classes(self):
+        """(class index, its elements) for the classes present."""
+        for c in range(len(RANKINGS)):
+            sel = np.flatnonzero(self.cls == c)
+            if len(sel):
+                yield c, sel
+
+
+def _element_dofs(space, ne: int) -> np.ndarray:
+    return np.array([space.GetDofNrs(ElementId(VOL, e)) for e in range(ne)], dtype=np.int64).reshape(ne, -1)
+
+
+def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[Tuple[np.ndarray, np.ndarray,
+                                                                                      np.ndarray]]:
+    """(A_II (ne, nI, nI), A_VF (ne, nV, nF3), facet dofs (ne, nF3) in the numbering of ``X``) of the form of the
+    module docstring, eps = 0, for ``X`` = broken RT_q x P_q x facet P_q (the space of
+    :func:`.flux._mixed_patch_problem`) on the triangles ``tri``, or None (``tri`` None, another dof layout).
+    The RT and P_q rows are in the order of the dof numbers (those of K are consecutive), the facet columns
+    in the local order of K."""
+    if tri is None:
+        return None
+    R, C, (nV, nQ) = reference_blocks(q)
+    V, Q, F = X.components
+    ne = len(tri.det)
+    nI = nV + nQ
+    nF3 = C.shape[1] - nI
+    if V.ndof != ne * nV or Q.ndof != ne * nQ:
+        return None
+    dofs = _element_dofs(X, ne)
+    expect = np.concatenate([(np.arange(ne) * nV)[:, None] + np.arange(nV),
+                             V.ndof + (np.arange(ne) * nQ)[:, None] + np.arange(nQ)], axis=1)
+    if dofs.shape[1] != nI + nF3 or not np.array_equal(dofs[:, :nI], expect):
+        return None
+    B, det = tri.B, tri.det
+    G = np.einsum("kia,kib->kab", B, B) / det[:, None, None]        # B^T B / |det B|
+    coef = np.stack([G[:, 0, 0], G[:, 1, 1], G[:, 0, 1]], axis=1)  # (ne, 3)
+    A_II = np.empty((ne, nI, nI))
+    A_VF = np.empty((ne, nV, nF3))
+    for c, sel in tri.classes():
+        A_II[sel] = C[c][:nI, :nI]
+        A_II[sel, :nV, :nV] = np.einsum("kt,tij->kij", coef[sel], R[c][:, :nV, :nV])
+        A_VF[sel] = C[c][:nV, nI:]
+    return A_II, A_VF, dofs[:, nI:].copy()
+
+
+def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bool):
+    """The three hat-weighted flux operators of :func:`.flux._flux_operator` (mu = 1): for the hat psi_i of the
+    local vertex i, the sparse matrix (Y.ndof x space.ndof) of
+
+        -(psi_i grad u, tau)_K + (grad psi_i . grad u, w)_K,
+
+    which is the operator's form -(psi_i grad u, tau) - (psi_i (Lap u w + grad u . grad w)) + <psi_i grad u . n, w>
+    after an integration by parts on each K (exact: polynomials on straight triangles; without the Laplacian
+    only for p = 1, where it vanishes).  With tau = B tau^ / det B, grad = B^-T grad^: the tau rows are those of
+    the reference triangle, the w rows sum_b (H grad^ psi_i)_b (d_b u, w)^ with H = det B (B^T B)^-1.  None
+    where the reference matrices do not apply (``tri`` None, ``space`` not H1 of one order p with p = 1 or
+    ``hessian``, another dof layout of ``Y``)."""
+    from scipy.sparse import csr_matrix
+
+    p = int(getattr(space, "globalorder", 0))
+    if tri is None or type(space).__name__ != "H1" or p < 1 or not (hessian or p == 1):
+        return None
+    Ft, E = reference_flux_blocks(q, p)
+    V, Q = Y.components
+    ne = len(tri.det)
+    nV, nQ, nU = Ft.shape[2], E.shape[2], Ft.shape[3]
+    if V.ndof != ne * nV or Q.ndof != ne * nQ:
+        return None
+    udofs = _element_dofs(space, ne)
+    if udofs.shape[1] != nU:
+        return None
+    B, det = tri.B, tri.det
+    BtB = np.einsum("kia,kib->kab", B, B)
+    H = np.linalg.inv(BtB) * det[:, None, None]
+    order = np.argsort(udofs, axis=1)                               # sorted column indices per row
+    cols = np.take_along_axis(udofs, order, axis=1)
+    indices = np.concatenate([np.repeat(cols[:, None, :], nV, axis=1).ravel(),
+                              np.repeat(cols[:, None, :], nQ, axis=1).ravel()])
+    indptr = np.arange(ne * (nV + nQ) + 1, dtype=np.int64) * nU
+    mats = []
+    for i in range(3):
+        bV = np.empty((ne, nV, nU))
+        bQ = np.empty((ne, nQ, nU))
+        c_i = H @ _HAT_GRADS[i]                                     # (ne, 2)
+        for c, sel in tri.classes():
+            bV[sel] = -Ft[c][i]
+            bQ[sel] = np.einsum("kb,bjn->kjn", c_i[sel], E[c])
+        data = np.concatenate([np.take_along_axis(bV, order[:, None, :], axis=2).ravel(),
+                               np.take_along_axis(bQ, order[:, None, :], axis=2).ravel()])
+        mats.append(csr_matrix((data, indices, indptr), shape=(Y.ndof, space.ndof)))
+    return mats

@@ -1,0 +1,80 @@
+"""Element blocks of the mixed patch form from reference matrices (ngcontact.estimators.mixed_blocks) against
+NGSolve's assembly of the form (ngcontact.estimators.patches._assembled_blocks)."""
+import numpy as np
+import pytest
+from netgen.geom2d import SplineGeometry, unit_square
+from ngsolve import H1, GridFunction, Mesh
+
+from ngcontact.estimators.flux import _mixed_patch_problem
+from ngcontact.estimators.flux import _flux_operator, PatchData
+from ngcontact.estimators.mixed_blocks import AffineTriangles, flux_operators, mixed_element_blocks
+from ngcontact.estimators.patches import PatchSolver, _assembled_blocks
+
+
+def _sorted_facets(A_VF, fdofs):
+    order = np.argsort(fdofs, axis=1)
+    return np.take_along_axis(A_VF, order[:, None, :], axis=2), np.take_along_axis(fdofs, order, axis=1)
+
+
+def _meshes():
+    """An unstructured mesh, the same after two adaptive bisection steps, and one with a re-entrant corner."""
+    ng = unit_square.GenerateMesh(maxh=0.25)
+    yield Mesh(ng)
+    mesh = Mesh(unit_square.GenerateMesh(maxh=0.3))
+    for _ in range(2):
+        for el in mesh.Elements():
+            mesh.SetRefinementFlag(el, el.nr % 3 == 0)
+        mesh.Refine()
+    yield mesh
+    geo = SplineGeometry()
+    pts = [geo.AppendPoint(*p) for p in [(0, 0), (1, 0), (1, 1), (-1, 1), (-1, -1), (0, -1)]]
+    for a, b in zip(pts, pts[1:] + pts[:1]):
+        geo.Append(["line", a, b], bc="dirichlet")
+    yield Mesh(geo.GenerateMesh(maxh=0.4))
+
+
+@pytest.mark.parametrize("q", [1, 2, 3, 4])
+def test_reference_blocks_equal_assembled(q):
+    for mesh in _meshes():
+        _, X, bf, _ = _mixed_patch_problem(mesh, q, 0.0)
+        V, Q, _ = X.components
+        ne = mesh.ne
+        nV, nQ = V.ndof // ne, Q.ndof // ne
+        ref = mixed_element_blocks(AffineTriangles.of(mesh), X, q)
+        assert ref is not None
+        A_II, A_VF, fd = _assembled_blocks(X, bf, ne, nV, nQ)
+        scale = np.abs(A_II).max()
+        assert np.abs(ref[0] - A_II).max() <= 1e-13 * scale
+        B, f = _sorted_facets(ref[1], ref[2])
+        assert np.array_equal(f, fd)
+        assert np.abs(B - A_VF).max() <= 1e-13 * np.abs(A_VF).max()
+
+
+def test_curved_mesh_falls_back_to_assembly():
+    geo = SplineGeometry()
+    geo.AddCircle((0, 0), 1, bc="dirichlet")
+    mesh = Mesh(geo.GenerateMesh(maxh=0.5))
+    mesh.Curve(2)
+    assert AffineTriangles.of(mesh) is None
+    _, X, _, _ = _mixed_patch_problem(mesh, 2, 0.0)
+    assert mixed_element_blocks(None, X, 2) is None
+
+
+@pytest.mark.parametrize("q,p", [(1, 1), (2, 1), (2, 2), (3, 2), (3, 3), (4, 4)])
+def test_reference_flux_operators_equal_assembled(q, p):
+    """The hat-weighted flux operators (RT_q x P_q rows, P_p columns; q = p + 1: the flux_order option) from
+    reference matrices against NGSolve's assembly of the operator's form (Hessian and element-boundary terms)."""
+    for mesh in _meshes():
+        _, X, bf, _ = _mixed_patch_problem(mesh, q, 0.0)
+        ev = mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
+        tri = AffineTriangles.of(mesh)
+        solver = PatchSolver(mesh, X, bf, ev, blocks=mixed_element_blocks(tri, X, q), affine=tri)
+        u = GridFunction(H1(mesh, order=p, dirichlet="dirichlet|.*"))
+        key, space, form_of_hat, _, _, reference = _flux_operator(solver, PatchData(u=u, mu=1.0, hessian=p > 1))
+        assembled = PatchSolver.operators(solver, key, space, form_of_hat)      # no reference: NGSolve's assembly
+        ref = reference(solver)
+        assert ref is not None and ref is not assembled
+        for A, R in zip(assembled, ref):
+            assert A.shape == R.shape
+            assert abs(A - R).max() <= 1e-12 * abs(A).max(), abs(A - R).max() / abs(A).max()
+    assert flux_operators(None, solver.Y, q, space, True) is None
