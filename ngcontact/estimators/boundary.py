@@ -70,7 +70,14 @@ def residual_multiplier(sv: SolutionView) -> CoefficientFunction:
     """rho_h, the elementwise multiplier of the discrete solution (module doc), with f_a replaced by its
     elementwise L2 projection onto P_{p-2}, the degree of Lap u_ah: rho_h in P_{p-2}(K), whose error
     comes from lam and u - u_h only (not from the variation of f_a).  On straight elements a GridFunction of
-    L2(P_{p-2}) (exact to round-off), on curved ones the expression with the Hessians of the fields."""
+    L2(P_{p-2}) (exact to round-off), on curved ones the expression with the Hessians of the fields.  Computed
+    once per iterate (kept in ``sv.cache``)."""
+    if "rho_h" not in sv.cache:
+        sv.cache["rho_h"] = _residual_multiplier(sv)
+    return sv.cache["rho_h"]
+
+
+def _residual_multiplier(sv: SolutionView) -> CoefficientFunction:
     dv = sv.disc
     Q = L2(dv.mesh, order=max(dv.order - 2, 0))
     num, den = CoefficientFunction(0.0), 0.0

@@ -476,11 +476,13 @@ def _equilibration_data(sv: SolutionView, q: int, multiplier, batched: bool, bou
 
     data = []
     for fd in sv.fields:
-        def source(w, fd=fd):  # -(psi_a (f + s lam_h), w), data quadrature as in the FE system
-            out = -fd.f * w * dx(intrules=rules["load"])
-            return out if lam_term is None else out - fd.sign * lam_term(w) * lam_dx
-        data.append(PatchData(u=fd.u, mu=fd.mu, source=source, hessian=p > 1, bonus_intorder=bonus,
-                              name=f"sigma_{fd.name}",
+        def source(w, fd=fd):  # -(psi_a s lam_h, w)
+            return -fd.sign * lam_term(w) * lam_dx
+
+        def load(w, f=fd.f):  # -(psi_a f, w), data quadrature as in the FE system; the batched solver assembles
+            return -f * w * dx(intrules=rules["load"])  # it once per load object (every multiplier, every iterate)
+        data.append(PatchData(u=fd.u, mu=fd.mu, source=None if lam_term is None else source, hessian=p > 1,
+                              bonus_intorder=bonus, name=f"sigma_{fd.name}", load=(fd.f, load),
                               vertex_values=None if vertex_values is None else
                               [(fd.sign * v, shape) for v, shape in vertex_values]))
     return data, lam, lam_order, lam_rule

@@ -183,6 +183,8 @@ class SolutionView:
     gfs : dict
         ``u1``, ``u2`` (or ``u``), ``lam`` (lam_h) and ``gap`` (u1h - u2h or u_h - psi).
     fields : tuple of FieldData
+    cache : dict
+        quantities of this iterate computed once (e.g. the residual multiplier of :mod:`.boundary`).
     """
 
     disc: DiscretizationView
@@ -190,6 +192,7 @@ class SolutionView:
     y: np.ndarray
     gfs: dict
     fields: Tuple[FieldData, ...]
+    cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, disc, x, y) -> "SolutionView":
