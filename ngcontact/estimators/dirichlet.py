@@ -58,8 +58,13 @@ def boundary_strip(dv: DiscretizationView, layers: int):
 
 
 def _element_dofs(space, elements) -> np.ndarray:
-    dofs = [d for e in np.flatnonzero(elements) for d in space.GetDofNrs(ElementId(VOL, int(e)))]
-    return np.unique(np.array(dofs, dtype=np.int64)) if dofs else np.zeros(0, dtype=np.int64)
+    """The dof numbers of the elements of the mask ``elements`` (with repetitions)."""
+    rows = [space.GetDofNrs(ElementId(VOL, int(e))) for e in np.flatnonzero(elements)]
+    if not rows:
+        return np.zeros(0, dtype=np.int64)
+    if len({len(r) for r in rows}) == 1:  # one order everywhere: one (n, ndof) array, no flattening in Python
+        return np.array(rows, dtype=np.int64).ravel()
+    return np.concatenate([np.asarray(r, dtype=np.int64) for r in rows])
 
 
 def _bitarray(mask) -> BitArray:
@@ -140,8 +145,9 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
         phi = GridFunction(W, name=f"phi_{fd.name}")
         phi.vec.data = cinv * LinearForm(-grad(w) * curl_ps * dxs).Assemble().vec
         rho = CoefficientFunction((grad(phi)[1], -grad(phi)[0]))  # div rho = 0
-        b_K = fd.mu * Integrate(grad(w) * grad(w) * dx, mesh, element_wise=True).NumPy()
-        e_K = fd.mu * Integrate((grad(w) + rho) ** 2 * dx, mesh, element_wise=True).NumPy()
+        # w and rho vanish off the strip (their dofs are those of strip elements): integrals on the strip only
+        b_K = fd.mu * Integrate(grad(w) * grad(w) * dxs, mesh, element_wise=True).NumPy()
+        e_K = fd.mu * Integrate((grad(w) + rho) ** 2 * dxs, mesh, element_wise=True).NumPy()
         bc2 += float(b_K.sum())
         eps2 += float(e_K.sum())
         loc += b_K + e_K
