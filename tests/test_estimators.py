@@ -467,3 +467,32 @@ def test_energy_error_from_the_caller(solved_scene):
     assert estimate(disc, sol.x, sol.y, err_energy=2 * err, errors=False).i_eff == pytest.approx(own.i_eff / 2)
     assert "i_eff" not in estimate(disc, sol.x, sol.y, errors=False).summary()
     assert estimate(disc, sol.x, sol.y, EstimatorOptions(flux_order=2)).flux.order == 2
+
+
+def test_negative_part_of_a_nonnegative_p1_function_is_zero_without_quadrature():
+    """negative_part_squares: a P1 GridFunction with nonnegative coefficients gives zeros (no quadrature), as the
+    quadrature of (lam^-)^2 does; one negative vertex value, or a P2 function (negative also with nonnegative
+    coefficients), goes through the quadrature."""
+    from ngsolve import H1, GridFunction, IfPos
+
+    from ngcontact.estimators.options import EstimatorOptions as Opts
+    from ngcontact.estimators.terms import Integrals, negative_part_squares
+
+    scene = load_scene("test1")
+    mesh = list(scene.problem.domain.meshes(2))[-1]
+    disc = FEMDiscretization(scene.problem, mesh, order=1)
+    ig = Integrals.of(DiscretizationView.of(disc), Opts())
+    for order in (1, 2):
+        lam = GridFunction(H1(mesh, order=order))
+        lam.Set(1 + x * y)
+        vals = negative_part_squares(ig, lam)
+        ref = ig.ew(IfPos(-lam, lam * lam, 0.0))
+        assert np.array_equal(vals, ref)
+        assert order > 1 or not vals.any()
+        lam.vec.FV().NumPy()[0] = -1.0
+        vals = negative_part_squares(ig, lam)
+        assert vals.max() > 0.0 and np.array_equal(vals, ig.ew(IfPos(-lam, lam * lam, 0.0)))
+    # P2 with nonnegative coefficients can be negative (NGSolve's edge functions): no shortcut there
+    lam.vec.FV().NumPy()[:] = 0.0
+    lam.vec.FV().NumPy()[mesh.nv] = 1.0
+    assert negative_part_squares(ig, lam).max() > 0.0

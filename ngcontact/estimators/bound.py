@@ -98,14 +98,14 @@ from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
 import numpy as np
-from ngsolve import L2, GridFunction, IfPos, TaskManager
+from ngsolve import L2, GridFunction, TaskManager
 
 from .dirichlet import dirichlet_lifting
 from .flux import FluxReconstruction, reconstruct, reconstruct_several, vertex_device_exact
 from .nonnegative import QuadratureArrays, concentrated_multiplier
 from .options import EstimatorOptions
 from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, flux_rule_order,
-                    nonconformity, nonnegative_part)
+                    negative_part_squares, nonconformity, nonnegative_part)
 from .view import DiscretizationView, SolutionView
 
 __all__ = ["Estimate", "estimate"]
@@ -338,7 +338,7 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
             shared = {} if shared is None else shared
             vals, grads, gap, ggap = corrected_fields(dv, fields, ws)
             lam_d = sv.gfs["lam"]  # the discrete (dual-basis for p >= 2) multiplier of the seed
-            shared["seed"] = C_om * math.sqrt(max(float(ig.ew(IfPos(-lam_d, lam_d * lam_d, 0.0)).sum()), 0.0))
+            shared["seed"] = C_om * math.sqrt(max(float(negative_part_squares(ig, lam_d).sum()), 0.0))
             nonc1, corr, gcorr, nonc1_K = nonconformity(sv, ig, gap, ggap, exact_bc=all(w is None for w in ws))
             shared.update(fields=(vals, grads, gap, ggap), nonc1=(nonc1, corr, gcorr, nonc1_K),
                           theta=contact_work(ig, fields, grads, corr, gcorr))

@@ -159,10 +159,11 @@ def _mixed_patch_problem(mesh, q: int, regularization: float):
 
 
 def _times(cf, form):
-    """The SumOfIntegrals ``form`` with every integrand multiplied by ``cf``."""
+    """The SumOfIntegrals ``form`` with every integrand multiplied by ``cf``, compiled (the hat-weighted patch
+    forms are assembled once per hat: common subexpressions such as the load are then evaluated once per point)."""
     out = None
     for integral in form:
-        term = (cf * integral.coef) * integral.symbol
+        term = (cf * integral.coef).Compile() * integral.symbol
         out = term if out is None else out + term
     return out
 

@@ -46,7 +46,7 @@ from .options import EstimatorOptions
 from .view import DiscretizationView, SolutionView
 
 __all__ = ["Integrals", "element_diameters", "friedrichs_constant", "P0Dual", "flux_residual", "flux_rule_order",
-           "mean_term", "defect_norm", "nonnegative_part", "corrected_fields", "split", "nonconformity",
+           "mean_term", "defect_norm", "negative_part_squares", "nonnegative_part", "corrected_fields", "split", "nonconformity",
            "admissible_correction", "contact_work", "direct_root"]
 
 J01 = 2.404825557695773  # first zero of the Bessel function J0
@@ -252,10 +252,21 @@ def defect_norm(ig: Integrals, delta, ref: float, parts=None):
     return ig.C_mu * (math.sqrt(float(loc_K.sum())) + dnorm), loc_K
 
 
+def negative_part_squares(ig: Integrals, lam) -> np.ndarray:
+    """Element integrals of (lam^-)^2.  Zero without quadrature when lam is a GridFunction of P1 (H1 of order 1)
+    with nonnegative coefficients: its vertex values, and a P1 function with nonnegative vertex values is
+    nonnegative (the quadrature of IfPos(-lam, lam^2, 0) gives exactly 0 too)."""
+    space = getattr(lam, "space", None)
+    if space is not None and type(space).__name__ == "H1" and space.globalorder == 1 \
+            and float(lam.vec.FV().NumPy().min(initial=0.0)) >= 0.0:
+        return np.zeros(ig.mesh.ne)
+    return ig.ew(IfPos(-lam, lam * lam, 0.0))
+
+
 def nonnegative_part(ig: Integrals, lam, lam_order: int, ref: float):
     """(lam~, eta_nonc,2, element parts): lam~ = lam where lam >= 0 everywhere, else
     :func:`.nonnegative.nonnegative_multiplier` with the defect bounded by :func:`defect_norm`."""
-    if float(ig.ew(IfPos(-lam, lam * lam, 0.0)).sum()) > 0.0:
+    if float(negative_part_squares(ig, lam).sum()) > 0.0:
         lam_t, _ = nonnegative_multiplier(lam, ig.mesh, lam_order, ig.area)
         nonc2, loc_K = defect_norm(ig, lam - lam_t, ref)
         return lam_t, nonc2, loc_K
