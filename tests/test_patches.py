@@ -99,3 +99,20 @@ def test_patch_constant_multiplier_beyond_the_vertex_device(scene, p, level):
     with pytest.raises(ValueError, match="batched"):
         from ngcontact.estimators.flux import PatchData, equilibrate_all
         equilibrate_all(disc.mesh, p, [PatchData(u=None, mu=1.0, vertex_values=np.zeros((disc.mesh.ne, 3)))])
+
+
+@pytest.mark.parametrize("scene,p,level", [("test1", 1, 1), ("test1", 2, 1), ("lshape", 3, 0)])
+def test_sparse_patch_operators_reproduce_the_loop(scene, p, level):
+    """From the fourth call on (every patch inverse kept), scatter, inverses and gather are three sparse products
+    (PatchSolver._patch_operators); the fluxes are those of the group loop of the first three calls to round-off
+    (Dirichlet and interior patches, RT_1..RT_3)."""
+    disc, sol = _solved(scene, p, level)
+    S = patch_solver(DiscretizationView.of(disc), p)
+    loop = [reconstruct_fluxes(disc, sol.x, sol.y) for _ in range(3)]
+    assert S._patch_ops is None and S._inv_cache
+    sparse = reconstruct_fluxes(disc, sol.x, sol.y)
+    assert S._patch_ops is not None
+    for ref in (loop[0], loop[2]):
+        for a, b in zip(ref.sigma, sparse.sigma):
+            diff = sqrt(Integrate((a - b) ** 2 * dx, disc.mesh))
+            assert diff <= 1e-12 * sqrt(Integrate(a ** 2 * dx, disc.mesh)), diff

@@ -21,7 +21,8 @@ right-hand side term multiplied by the hat function psi_a of the patch), compute
 
 Reuse across calls (every Newton iterate, every field): the element factorizations, the inverses
 of the patch matrices (formed from the third call on, kept while they fit in
-:attr:`PatchSolver.CACHE_BYTES`), and the parts
+:attr:`PatchSolver.CACHE_BYTES`; from the fourth call on, step 4 is three sparse products -- scatter,
+block-diagonal inverses, gather -- instead of the loop over groups of patches), and the parts
 of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
 :mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
 (:meth:`PatchSolver.operators`; on straight triangles from reference matrices,
@@ -183,6 +184,7 @@ class PatchSolver:
         self._ops = {}
         self._fixed = {}
         self._inv_cache = {}
+        self._patch_ops = None
         self._calls = 0
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
         self._keep_inverses = nbytes <= self.CACHE_BYTES
@@ -374,6 +376,29 @@ class PatchSolver:
                 b[f, i, K, nV:] += kappa[:, None, None] * self.mass_Q[K]
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
         g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
+        ops = self._patch_operators()
+        if ops is not None:  # every patch inverse is kept: scatter, inverses and gather as three sparse products
+            E, S_inv, Gt = ops
+            msum = (Gt @ (S_inv @ (E @ g.reshape(nf, -1).T))).T.reshape(nf, ne, nF3)
+        else:
+            msum = self._patch_loop(g, nf)
+        bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
+        if self.A_II_inv is None and self._calls > 2:
+            self.A_II_inv = np.linalg.inv(self.A_II)
+        if self.A_II_inv is None:
+            xb = np.linalg.solve(self.A_II, bsum.transpose(1, 2, 0))                  # (ne, nI, nf)
+        else:
+            xb = self.A_II_inv @ bsum.transpose(1, 2, 0)
+        out = []
+        for f in range(nf):
+            x = xb[:, :, f] - np.einsum("kif,kf->ki", self.W, msum[f])
+            out.append(x[:, :nV].copy())
+        return out
+
+    def _patch_loop(self, g, nf: int) -> np.ndarray:
+        """msum (nf, ne, nF3): the patch solutions for the condensed right-hand sides g (nf, 3, ne, nF3), summed
+        on the facet dofs of every element, group by group and chunk by chunk."""
+        ne, nF3 = self.mesh.ne, self.nF3
         msum = np.zeros((nf, ne * nF3))
         for gi, G in enumerate(self.groups):
             m = G["m"]
@@ -390,16 +415,44 @@ class PatchSolver:
                 flat = (K[:, :, None] * nF3 + np.arange(nF3)).ravel()
                 for f in range(nf):
                     msum[f] += np.bincount(flat, weights=vals[..., f].ravel(), minlength=ne * nF3)
-        msum = msum.reshape(nf, ne, nF3)
-        bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
-        if self.A_II_inv is None and self._calls > 2:
-            self.A_II_inv = np.linalg.inv(self.A_II)
-        if self.A_II_inv is None:
-            xb = np.linalg.solve(self.A_II, bsum.transpose(1, 2, 0))                  # (ne, nI, nf)
-        else:
-            xb = self.A_II_inv @ bsum.transpose(1, 2, 0)
-        out = []
-        for f in range(nf):
-            x = xb[:, :, f] - np.einsum("kif,kf->ki", self.W, msum[f])
-            out.append(x[:, :nV].copy())
-        return out
+        return msum.reshape(nf, ne, nF3)
+
+    def _patch_operators(self):
+        """(E, S_inv, Gt) once every patch inverse is kept (else None): E scatters the condensed right-hand sides
+        (3 ne nF3, hat-major) into the stacked patch unknowns (not into the fixed ones: their right-hand side is
+        zero), S_inv is block diagonal with the patch inverses, Gt gathers the patch solutions onto the facet dofs
+        of the elements (ne nF3), summing over the patches; msum = Gt S_inv E g is what :meth:`_patch_loop`
+        computes.  Built once."""
+        from scipy.sparse import csr_matrix
+
+        if self._patch_ops is not None:
+            return self._patch_ops
+        keys = [(gi, c0) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
+        if not self._keep_inverses or any(k not in self._inv_cache for k in keys):
+            return None
+        ne, nF3 = self.mesh.ne, self.nF3
+        er, ec, sr, sc, sv, gr, gc, base = [], [], [], [], [], [], [], 0
+        for gi, G in enumerate(self.groups):
+            m = G["m"]
+            for c0 in range(0, len(G["pairs"]), self.CHUNK):
+                sl = slice(c0, c0 + self.CHUNK)
+                pairs, loc = G["pairs"][sl], G["loc"][sl]                          # (np, n), (np, n, nF3)
+                npch = len(pairs)
+                K, i = self.pair_K[pairs], self.pair_i[pairs]
+                r = base + np.arange(npch)[:, None, None] * m + loc                 # patch unknown of (p, j, t)
+                fixed = np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1).reshape(loc.shape)
+                er.append(r[~fixed])
+                ec.append(((i[:, :, None] * ne + K[:, :, None]) * nF3 + np.arange(nF3))[~fixed])
+                gr.append((K[:, :, None] * nF3 + np.arange(nF3)).ravel())
+                gc.append(r.ravel())
+                first = base + np.arange(npch)[:, None, None] * m                   # (np, 1, 1)
+                sr.append(np.broadcast_to(first + np.arange(m)[None, :, None], (npch, m, m)).ravel())
+                sc.append(np.broadcast_to(first + np.arange(m)[None, None, :], (npch, m, m)).ravel())
+                sv.append(self._inv_cache[(gi, c0)].ravel())
+                base += npch * m
+        cat = np.concatenate
+        E = csr_matrix((np.ones(sum(len(x) for x in er)), (cat(er), cat(ec))), shape=(base, 3 * ne * nF3))
+        S_inv = csr_matrix((cat(sv), (cat(sr), cat(sc))), shape=(base, base))
+        Gt = csr_matrix((np.ones(sum(len(x) for x in gr)), (cat(gr), cat(gc))), shape=(ne * nF3, base))
+        self._patch_ops = (E, S_inv, Gt)
+        return self._patch_ops
