@@ -37,6 +37,8 @@ import numpy as np
 from ngsolve import (H1, HDiv, L2, BilinearForm, CoefficientFunction, ElementId, FacetFESpace, Mesh, VOL, div, dx,
                      grad, specialcf, x, y)
 
+from ..discretizations.p1 import p1_tables
+
 __all__ = ["AffineTriangles", "mixed_element_blocks", "flux_operators", "reference_blocks", "RANKINGS"]
 
 #: rankings of the global numbers of a triangle's local vertices 0, 1, 2 (rank 0: the smallest number)
@@ -139,16 +141,10 @@ class AffineTriangles:
 
     @classmethod
     def of(cls, mesh) -> Optional["AffineTriangles"]:
-        ng = mesh.ngmesh
-        if ng.dim != 2 or ng.GetCurveOrder() > 1:
+        tables = p1_tables(mesh)  # straight triangles whose points are the vertices, else None
+        if tables is None:
             return None
-        nodes = ng.Elements2D().NumPy()["nodes"]
-        if len(nodes) != mesh.ne or (nodes.shape[1] > 3 and np.any(nodes[:, 3])):
-            return None
-        P = np.asarray(ng.Coordinates()[:, :2], dtype=float)
-        if len(P) != mesh.nv:
-            return None
-        ev = nodes[:, :3].astype(np.int64) - 1
+        P, ev = tables
         xv = P[ev]                                                     # (ne, 3, 2)
         B = np.stack([xv[:, 1] - xv[:, 0], xv[:, 2] - xv[:, 0]], axis=2)  # columns: images of (1,0), (0,1)
         det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
