@@ -101,18 +101,43 @@ def test_patch_constant_multiplier_beyond_the_vertex_device(scene, p, level):
         equilibrate_all(disc.mesh, p, [PatchData(u=None, mu=1.0, vertex_values=np.zeros((disc.mesh.ne, 3)))])
 
 
+def _same_fluxes(ref, other, mesh):
+    for a, b in zip(ref.sigma, other.sigma):
+        diff = sqrt(Integrate((a - b) ** 2 * dx, mesh))
+        assert diff <= 1e-12 * sqrt(Integrate(a ** 2 * dx, mesh)), diff
+
+
 @pytest.mark.parametrize("scene,p,level", [("test1", 1, 1), ("test1", 2, 1), ("lshape", 3, 0)])
 def test_sparse_patch_operators_reproduce_the_loop(scene, p, level):
-    """From the fourth call on (every patch inverse kept), scatter, inverses and gather are three sparse products
-    (PatchSolver._patch_operators); the fluxes are those of the group loop of the first three calls to round-off
+    """From the third call on (every patch inverse kept), scatter, inverses and gather are three sparse products
+    (PatchSolver._patch_operators); the fluxes are those of the group loop of the first two calls to round-off
     (Dirichlet and interior patches, RT_1..RT_3)."""
     disc, sol = _solved(scene, p, level)
     S = patch_solver(DiscretizationView.of(disc), p)
-    loop = [reconstruct_fluxes(disc, sol.x, sol.y) for _ in range(3)]
-    assert S._patch_ops is None and S._inv_cache
-    sparse = reconstruct_fluxes(disc, sol.x, sol.y)
-    assert S._patch_ops is not None
-    for ref in (loop[0], loop[2]):
-        for a, b in zip(ref.sigma, sparse.sigma):
-            diff = sqrt(Integrate((a - b) ** 2 * dx, disc.mesh))
-            assert diff <= 1e-12 * sqrt(Integrate(a ** 2 * dx, disc.mesh)), diff
+    loop = [reconstruct_fluxes(disc, sol.x, sol.y) for _ in range(2)]
+    assert S._patch_ops is None and not S._inv_cache and S.A_II_inv is None
+    sparse = [reconstruct_fluxes(disc, sol.x, sol.y) for _ in range(2)]
+    assert S._patch_ops is not None and S.A_II_inv is not None
+    for ref in loop:
+        for other in sparse:
+            _same_fluxes(ref, other, disc.mesh)
+
+
+@pytest.mark.parametrize("scene,p,level", [("test1", 1, 1), ("lshape", 3, 0)])
+def test_expected_repeats_use_the_sparse_step_from_the_first_call(scene, p, level):
+    """A discretization marked for repeated evaluations (the estimators inside a Newton loop) forms the patch
+    inverses and the sparse patch step at the first call; the fluxes are those of an unmarked discretization's
+    group loop to round-off."""
+    from ngcontact.estimators import expect_repeated_evaluations
+
+    from ngcontact.estimators.view import _cache_of
+
+    disc, sol = _solved(scene, p, level)
+    loop = reconstruct_fluxes(disc, sol.x, sol.y)
+    assert patch_solver(DiscretizationView.of(disc), p)._patch_ops is None
+    _cache_of(disc).clear()  # a fresh start: no patch solver, no kept inverses
+    expect_repeated_evaluations(disc)
+    first = reconstruct_fluxes(disc, sol.x, sol.y)
+    S = patch_solver(DiscretizationView.of(disc), p)
+    assert S._patch_ops is not None and S._calls == 1
+    _same_fluxes(loop, first, disc.mesh)

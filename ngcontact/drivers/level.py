@@ -14,7 +14,7 @@ from typing import Callable, List, Optional
 import numpy as np
 
 from ..discretizations import DISCRETIZATIONS
-from ..estimators import EstimatorOptions, algebraic_flux, estimate, estimate_components
+from ..estimators import EstimatorOptions, algebraic_flux, estimate, estimate_components, expect_repeated_evaluations
 from ..newton import NewtonOptions, Reference, decoupled_newton, semismooth_newton
 from ..options import GMRES_NEWTON, MULTIGRID_NEWTON
 from ..rates import rates
@@ -48,6 +48,7 @@ class LevelEstimator:
 
     def __init__(self, disc, options: EstimatorOptions):
         self.disc, self.options = disc, options
+        expect_repeated_evaluations(disc)  # every few Krylov iterations: per-mesh structures at the first call
 
     def components(self, x, y, r_alg, dx):
         sig = None if dx is None else algebraic_flux(self.disc, dx, self.options)

@@ -28,11 +28,11 @@ from .multipliers import multiplier_p1
 from .nonnegative import nonnegative_multiplier
 from .options import EstimatorOptions
 from .terms import element_diameters, friedrichs_constant
-from .view import FieldData
+from .view import FieldData, expect_repeated_evaluations
 
 __all__ = ["EstimatorOptions", "Estimate", "estimate", "friedrichs_constant", "element_diameters",
            "nonnegative_multiplier", "FluxReconstruction", "FieldData", "reconstruct_fluxes", "equilibrate",
            "multiplier_p1", "algebraic_flux",
            "equilibration_defect", "normal_jump", "complementarity_report", "projected_source",
            "Components", "ComponentsHistory", "estimate_components", "algebraic_residual_function",
-           "newton_history", "plot_components_history"]
+           "newton_history", "plot_components_history", "expect_repeated_evaluations"]

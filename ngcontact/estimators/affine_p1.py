@@ -68,6 +68,9 @@ class P1Arrays:
         pts = np.asarray(CoefficientFunction((x, y))(self.mips)).reshape(mesh.ne, 3, 2)
         dist = ((coords[ev][:, None, :, :] - pts[:, :, None, :]) ** 2).sum(axis=-1)  # (ne, point, local vertex)
         self.pv = np.take_along_axis(ev, dist.argmin(axis=2), axis=1)
+        if not np.array_equal(self.pv, ev):  # NGSolve: vertex j of an element sits at the j-th reference point
+            raise RuntimeError("the local vertex order of the mesh elements is not that of the reference points")
+        self._hat_gfs = None
         P = coords[self.pv]                                   # (ne, 3, 2)
         e1, e2 = P[:, 0] - P[:, 2], P[:, 1] - P[:, 2]
         det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
@@ -143,30 +146,55 @@ class P1Arrays:
     def load(self, f, load_order: int) -> dict:
         """Per-load arrays (kept while ``f`` is the same object; the last four loads): Pi f at the vertices,
         ||o_f||_K^2, (o_f, lambda_j)_K and (f, lambda_j)_K in the rule of order 5 + bonus, (o_f, 1)_K in the
-        rule of order 13 + bonus."""
+        rule of order 13 + bonus.  Element-wise ``Integrate`` with those rules (the integrand compiled): eleven
+        passes in C++, no values of f at the points held in Python."""
         hit = self._loads.get(id(f))
         if hit is not None and hit[0] is f and hit[1] is not None:
             return hit[1]
-        ne, area = self.mesh.ne, self.area
-        qL = self.rule(load_order)
-        b = np.einsum("kq,jq->kj", qL.W * qL.values(f), qL.bary)           # (f, lambda_j)_K, load rule
+        from ngsolve import Integrate
+
+        ne, area, mesh = self.mesh.ne, self.area, self.mesh
+        hats = self._hats()
+        fc = f.Compile()
+
+        def per_vertex(cf, order):  # (cf, lambda_j)_K, j: the local vertex (that of pv)
+            return np.stack([np.asarray(Integrate((cf * h).Compile(), mesh, order=order, element_wise=True))
+                             for h in hats], axis=1)
+
+        def per_element(cf, order):
+            return np.asarray(Integrate(cf.Compile(), mesh, order=order, element_wise=True))
+
+        b = per_vertex(fc, load_order)                                       # (f, lambda_j)_K, load rule
         pif = 12.0 / area[:, None] * (b - b.sum(axis=1, keepdims=True) / 4.0)  # the P1 mass matrix inverted
-        out = {"pi": pif}
-        for name, order in (("R1", 5 + self.bonus), ("R2", 13 + self.bonus)):
-            qa = self.rule(order)
-            fv = qa.values(f)
-            o = fv - np.einsum("kj,jq->kq", pif, qa.bary)                   # o_f at the points
-            if name == "R1":
-                out["oo"] = qa.integrate(o * o)
-                out["ol"] = np.einsum("kq,jq->kj", qa.W * o, qa.bary)
-                out["fl"] = np.einsum("kq,jq->kj", qa.W * fv, qa.bary)
-            else:
-                out["o1"] = qa.integrate(o)
+        pi_gf = GridFunction(hats[0].space)
+        pi_gf.vec.FV().NumPy()[:] = pif.ravel()
+        o = f - pi_gf                                                        # o_f = f - Pi f
+        r1, r2 = 5 + self.bonus, 13 + self.bonus
+        out = {"pi": pif, "oo": per_element(o * o, r1), "ol": per_vertex(o, r1), "fl": per_vertex(fc, r1),
+               "o1": per_element(o, r2)}
         if id(f) not in self._loads and len(self._loads) >= 4:
             self._loads.pop(next(iter(self._loads)))
         self._loads[id(f)] = (f, out)
         assert out["pi"].shape == (ne, 3)
         return out
+
+    def _hats(self):
+        """The barycentric coordinates lambda_j of every element as ``Discontinuous(H1(order=1))`` GridFunctions
+        (kept; local dof j is the vertex ``pv[K, j]``, checked in the constructor)."""
+        if self._hat_gfs is None:
+            from ngsolve import H1, Discontinuous
+
+            D1 = Discontinuous(H1(self.mesh, order=1))
+            ne = self.mesh.ne
+            hats = []
+            for i in range(3):
+                g = GridFunction(D1)
+                vals = np.zeros((ne, 3))
+                vals[:, i] = 1.0
+                g.vec.FV().NumPy()[:] = vals.ravel()
+                hats.append(g)
+            self._hat_gfs = hats
+        return self._hat_gfs
 
     # ------------------------------------------------------------ the terms
     def mass(self, a, b) -> np.ndarray:

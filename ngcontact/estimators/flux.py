@@ -63,7 +63,7 @@ from .multipliers import ContactMultiplier, PatchContactMultiplier, ShapedContac
 from .options import MULTIPLIERS, EstimatorOptions
 from .mixed_blocks import AffineTriangles, flux_operators, mixed_element_blocks
 from .patches import PatchSolver
-from .view import DiscretizationView, FieldData, SolutionView
+from .view import REPEATED, DiscretizationView, FieldData, SolutionView
 
 __all__ = ["FluxReconstruction", "PatchData", "equilibrate", "equilibrate_all", "flux_bonus", "patch_solver",
            "patch_regularization", "reconstruct", "reconstruct_fluxes", "reconstruct_several", "vertex_device_exact"]
@@ -170,7 +170,8 @@ def _times(cf, form):
 
 def patch_solver(dv: DiscretizationView, q: int) -> PatchSolver:
     """The batched :class:`.patches.PatchSolver` of the mesh for RT degree q (cached per
-    discretization: reused for every field, every Newton iterate and the algebraic fluxes)."""
+    discretization: reused for every field, every Newton iterate and the algebraic fluxes; told to expect
+    repeated calls when the discretization is marked so, :func:`.view.expect_repeated_evaluations`)."""
     c = dv.cache
     key = ("patch_solver", int(q))
     if key not in c:
@@ -179,6 +180,8 @@ def patch_solver(dv: DiscretizationView, q: int) -> PatchSolver:
         tri = None if dv.curved else AffineTriangles.of(dv.mesh)
         c[key] = PatchSolver(dv.mesh, X, bf, dv.element_vertices(), blocks=mixed_element_blocks(tri, X, q),
                              affine=tri)
+    if c.get(REPEATED):  # the estimators of a Newton loop (view.expect_repeated_evaluations)
+        c[key].expect_repeats()
     return c[key]
 
 

@@ -12,6 +12,7 @@ from typing import List, Optional, Sequence
 
 
 from .components import estimate_components
+from .view import expect_repeated_evaluations
 from .options import EstimatorOptions
 
 __all__ = ["newton_history", "ComponentsHistory", "plot_components_history"]
@@ -36,6 +37,7 @@ def newton_history(disc, iterates, *, errors: bool = True, options: Optional[Est
         one row per iterate: ``k`` and :meth:`.components.Components.summary`.
     """
     rows = []
+    expect_repeated_evaluations(disc)
     for k, it in enumerate(iterates):
         xk, yk = it[0], it[1]
         r = it[2] if len(it) > 2 else None
@@ -55,6 +57,7 @@ class ComponentsHistory:
     def __init__(self, disc, every: int = 1, errors: bool = True, options: Optional[EstimatorOptions] = None):
         self.disc, self.every, self.errors, self.options = disc, max(int(every), 1), errors, options
         self.rows: List[dict] = []
+        expect_repeated_evaluations(disc)
 
     def __call__(self, k: int, x, y, r_alg=None, sigma_alg=None):
         if k % self.every:

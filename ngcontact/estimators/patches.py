@@ -20,8 +20,9 @@ right-hand side term multiplied by the hat function psi_a of the patch), compute
    x_I = A_II^{-1} (sum_a b_K^a - A_IF sum_a m_K^a).
 
 Reuse across calls (every Newton iterate, every field): the element factorizations, the inverses
-of the patch matrices (formed from the third call on, kept while they fit in
-:attr:`PatchSolver.CACHE_BYTES`; from the fourth call on, step 4 is three sparse products -- scatter,
+of the patch matrices (formed at the third call, or at the first when the caller expects many
+(:meth:`PatchSolver.expect_repeats`: the estimators inside a Newton loop), kept while they fit in
+:attr:`PatchSolver.CACHE_BYTES`; from then on step 4 is three sparse products -- scatter,
 block-diagonal inverses, gather -- instead of the loop over groups of patches), and the parts
 of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
 :mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
@@ -180,12 +181,13 @@ class PatchSolver:
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
         self.S_K = S_K
-        self.A_II_inv = None  # formed from the third solve() on (as the patch inverses)
+        self.A_II_inv = None  # formed with the patch inverses
         self._ops = {}
         self._fixed = {}
         self._inv_cache = {}
         self._patch_ops = None
         self._calls = 0
+        self._inverse_from = 3  # the call of solve() that forms the inverses (expect_repeats: the first)
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
         self._keep_inverses = nbytes <= self.CACHE_BYTES
         # local-vertex hat functions (barycentric coordinates of K)
@@ -203,6 +205,12 @@ class PatchSolver:
     CHUNK = 4096
     #: memory allowed for the cached inverses of the patch matrices (else rebuilt in every call)
     CACHE_BYTES = 2 * 1024 ** 3
+
+    def expect_repeats(self) -> None:
+        """Form the inverses (patch matrices, element blocks) at the next :meth:`solve` already: the caller
+        will call it many times on this mesh (the estimators of the iterates of a Newton loop), so the loop
+        over the groups of patches of the first calls would only add to the cost."""
+        self._inverse_from = min(self._inverse_from, self._calls + 1)
 
     def operators(self, key, space, form_of_hat, reference=None):
         """The three sparse matrices (Y.ndof x space.ndof) of the bilinear forms
@@ -256,20 +264,20 @@ class PatchSolver:
         return M
 
     def _patch_solve(self, gi, G, sl, rhs):
-        """Solutions of the patch systems of the chunk ``sl`` of group ``gi`` for ``rhs`` (np, m, nf).
-        From the third :meth:`solve` on, the inverses are formed and kept (if they fit in
-        :attr:`CACHE_BYTES`): one or two calls (one estimate per mesh of an adaptive loop, with the two
-        multipliers of RT_3) do not pay for them; repeated calls (Newton iterates, algebraic fluxes)
-        then cost a product each."""
-        key = (gi, sl.start)
-        inv = self._inv_cache.get(key)
+        """Solutions of the patch systems of the chunk ``sl`` of group ``gi`` for ``rhs`` (np, m, nf): by the
+        kept inverse (:meth:`_form_inverses`) or by ``numpy.linalg.solve`` (one or two calls per mesh, e.g.
+        one estimate per mesh of an adaptive loop, do not pay for the inverses)."""
+        inv = self._inv_cache.get((gi, sl.start))
         if inv is not None:
             return inv @ rhs
-        S = self._patch_matrices(G, sl)
-        if self._keep_inverses and self._calls > 2:
-            inv = self._inv_cache[key] = np.linalg.inv(S)
-            return inv @ rhs
-        return np.linalg.solve(S, rhs)
+        return np.linalg.solve(self._patch_matrices(G, sl), rhs)
+
+    def _form_inverses(self) -> None:
+        """The inverses of all patch matrices (kept)."""
+        for gi, G in enumerate(self.groups):
+            for c0 in range(0, len(G["pairs"]), self.CHUNK):
+                if (gi, c0) not in self._inv_cache:
+                    self._inv_cache[(gi, c0)] = np.linalg.inv(self._patch_matrices(G, slice(c0, c0 + self.CHUNK)))
 
     def _patch_matrices(self, G, sl) -> np.ndarray:
         """The condensed matrices S_a (+ the null-mode term) of the patches ``sl`` of group G."""
@@ -377,13 +385,16 @@ class PatchSolver:
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
         g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
         ops = self._patch_operators()
+        if ops is None and self._keep_inverses and self._calls >= self._inverse_from:
+            self._form_inverses()
+            ops = self._patch_operators()
         if ops is not None:  # every patch inverse is kept: scatter, inverses and gather as three sparse products
             E, S_inv, Gt = ops
             msum = (Gt @ (S_inv @ (E @ g.reshape(nf, -1).T))).T.reshape(nf, ne, nF3)
         else:
             msum = self._patch_loop(g, nf)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
-        if self.A_II_inv is None and self._calls > 2:
+        if self.A_II_inv is None and self._calls >= self._inverse_from:
             self.A_II_inv = np.linalg.inv(self.A_II)
         if self.A_II_inv is None:
             xb = np.linalg.solve(self.A_II, bsum.transpose(1, 2, 0))                  # (ne, nI, nf)
@@ -422,8 +433,10 @@ class PatchSolver:
         (3 ne nF3, hat-major) into the stacked patch unknowns (not into the fixed ones: their right-hand side is
         zero), S_inv is block diagonal with the patch inverses, Gt gathers the patch solutions onto the facet dofs
         of the elements (ne nF3), summing over the patches; msum = Gt S_inv E g is what :meth:`_patch_loop`
-        computes.  Built once."""
-        from scipy.sparse import csr_matrix
+        computes.  Built once, as CSR arrays directly: every (hat, element, facet dof) is one patch unknown, so
+        E has at most one entry per column, Gt three per row (one per vertex patch of the element), S_inv m per
+        row of a patch of m unknowns (canonical CSR: sorted indices, no duplicates)."""
+        from scipy.sparse import csc_matrix, csr_matrix
 
         if self._patch_ops is not None:
             return self._patch_ops
@@ -431,7 +444,10 @@ class PatchSolver:
         if not self._keep_inverses or any(k not in self._inv_cache for k in keys):
             return None
         ne, nF3 = self.mesh.ne, self.nF3
-        er, ec, sr, sc, sv, gr, gc, base = [], [], [], [], [], [], [], 0
+        n_in = 3 * ne * nF3
+        unknown = np.full(n_in, -1, dtype=np.int64)  # patch unknown of (hat i, element K, facet dof t)
+        free = np.zeros(n_in, dtype=bool)
+        sv, sc, row_len, base = [], [], [], 0
         for gi, G in enumerate(self.groups):
             m = G["m"]
             for c0 in range(0, len(G["pairs"]), self.CHUNK):
@@ -439,20 +455,26 @@ class PatchSolver:
                 pairs, loc = G["pairs"][sl], G["loc"][sl]                          # (np, n), (np, n, nF3)
                 npch = len(pairs)
                 K, i = self.pair_K[pairs], self.pair_i[pairs]
-                r = base + np.arange(npch)[:, None, None] * m + loc                 # patch unknown of (p, j, t)
-                fixed = np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1).reshape(loc.shape)
-                er.append(r[~fixed])
-                ec.append(((i[:, :, None] * ne + K[:, :, None]) * nF3 + np.arange(nF3))[~fixed])
-                gr.append((K[:, :, None] * nF3 + np.arange(nF3)).ravel())
-                gc.append(r.ravel())
-                first = base + np.arange(npch)[:, None, None] * m                   # (np, 1, 1)
-                sr.append(np.broadcast_to(first + np.arange(m)[None, :, None], (npch, m, m)).ravel())
-                sc.append(np.broadcast_to(first + np.arange(m)[None, None, :], (npch, m, m)).ravel())
+                col = ((i[:, :, None] * ne + K[:, :, None]) * nF3 + np.arange(nF3)).ravel()
+                unknown[col] = (base + np.arange(npch)[:, None, None] * m + loc).ravel()
+                fixed = np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1)
+                free[col] = ~fixed.ravel()
                 sv.append(self._inv_cache[(gi, c0)].ravel())
+                first = base + np.arange(npch)[:, None, None] * m                   # (np, 1, 1)
+                sc.append(np.broadcast_to(first + np.arange(m)[None, None, :], (npch, m, m)).ravel())
+                row_len.append(np.full(npch * m, m, dtype=np.int64))
                 base += npch * m
-        cat = np.concatenate
-        E = csr_matrix((np.ones(sum(len(x) for x in er)), (cat(er), cat(ec))), shape=(base, 3 * ne * nF3))
-        S_inv = csr_matrix((cat(sv), (cat(sr), cat(sc))), shape=(base, base))
-        Gt = csr_matrix((np.ones(sum(len(x) for x in gr)), (cat(gr), cat(gc))), shape=(ne * nF3, base))
+        if unknown.min() < 0:  # pragma: no cover - every (hat, element) pair lies in one patch
+            raise RuntimeError("a (hat, element) pair outside the vertex patches")
+        # E: column (i, K, t) -> its patch unknown, if that one is free
+        E = csc_matrix((np.ones(int(free.sum())), unknown[free], np.concatenate([[0], np.cumsum(free)])),
+                       shape=(base, n_in)).tocsr()
+        # S_inv: row j of patch p holds row j of its inverse at the patch's columns
+        indptr = np.concatenate([[0], np.cumsum(np.concatenate(row_len))])
+        cols = np.concatenate(sc)
+        S_inv = csr_matrix((np.concatenate(sv), cols, indptr), shape=(base, base))
+        # Gt: facet dof (K, t) gathers the unknowns of its three vertex patches
+        Gt = csr_matrix((np.ones(n_in), np.sort(unknown.reshape(3, ne * nF3).T, axis=1).ravel(),
+                         np.arange(0, n_in + 1, 3)), shape=(ne * nF3, base))
         self._patch_ops = (E, S_inv, Gt)
         return self._patch_ops

@@ -21,7 +21,7 @@ from typing import Optional, Tuple
 import numpy as np
 from ngsolve import CoefficientFunction, GridFunction
 
-__all__ = ["FieldData", "DiscretizationView", "SolutionView"]
+__all__ = ["FieldData", "DiscretizationView", "SolutionView", "expect_repeated_evaluations", "REPEATED"]
 
 
 @dataclass
@@ -61,6 +61,17 @@ def _cache_of(disc) -> dict:
         return _CACHE.setdefault(disc, {})
     except TypeError:  # not weak-referenceable: no cache
         return {}
+
+
+#: key of the per-discretization cache marking it for repeated estimator evaluations
+REPEATED = "repeated_evaluations"
+
+
+def expect_repeated_evaluations(disc) -> None:
+    """Mark ``disc``: its estimators will be evaluated many times (every few Krylov iterations of an adaptive
+    inexact Newton loop), so the per-mesh structures that pay off only over repeated calls (the inverses of the
+    patch matrices and the sparse patch step of :mod:`.patches`) are built at the first evaluation already."""
+    _cache_of(disc)[REPEATED] = True
 
 
 @dataclass(frozen=True, eq=False)
