@@ -202,8 +202,9 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[
 
 
 def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bool):
-    """The three hat-weighted flux operators of :func:`.flux._flux_operator` (mu = 1): for the hat psi_i of the
-    local vertex i, the sparse matrix (Y.ndof x space.ndof) of
+    """The hat-weighted flux operators of :func:`.flux._flux_operator` (mu = 1) as one sparse matrix (3 ne nI x
+    space.ndof, rows in the layout of :meth:`.patches.PatchSolver.operators`: hat i, element K, local RT then P_q
+    dof): for the hat psi_i of the local vertex i, the rows of
 
         -(psi_i grad u, tau)_K + (grad psi_i . grad u, w)_K,
 
@@ -232,18 +233,14 @@ def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bo
     H = np.linalg.inv(BtB) * det[:, None, None]
     order = np.argsort(udofs, axis=1)                               # sorted column indices per row
     cols = np.take_along_axis(udofs, order, axis=1)
-    indices = np.concatenate([np.repeat(cols[:, None, :], nV, axis=1).ravel(),
-                              np.repeat(cols[:, None, :], nQ, axis=1).ravel()])
-    indptr = np.arange(ne * (nV + nQ) + 1, dtype=np.int64) * nU
-    mats = []
+    nI = nV + nQ
+    indices = np.broadcast_to(cols[None, :, None, :], (3, ne, nI, nU)).ravel()
+    indptr = np.arange(3 * ne * nI + 1, dtype=np.int64) * nU
+    data = np.empty((3, ne, nI, nU))
     for i in range(3):
-        bV = np.empty((ne, nV, nU))
-        bQ = np.empty((ne, nQ, nU))
         c_i = H @ _HAT_GRADS[i]                                     # (ne, 2)
         for c, sel in tri.classes():
-            bV[sel] = -Ft[c][i]
-            bQ[sel] = np.einsum("kb,bjn->kjn", c_i[sel], E[c])
-        data = np.concatenate([np.take_along_axis(bV, order[:, None, :], axis=2).ravel(),
-                               np.take_along_axis(bQ, order[:, None, :], axis=2).ravel()])
-        mats.append(csr_matrix((data, indices, indptr), shape=(Y.ndof, space.ndof)))
-    return mats
+            data[i, sel, :nV] = -Ft[c][i]
+            data[i, sel, nV:] = np.einsum("kb,bjn->kjn", c_i[sel], E[c])
+        data[i] = np.take_along_axis(data[i], order[:, None, :], axis=2)
+    return csr_matrix((data.ravel(), indices, indptr), shape=(3 * ne * nI, space.ndof))

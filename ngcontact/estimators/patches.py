@@ -186,6 +186,7 @@ class PatchSolver:
         self._fixed = {}
         self._inv_cache = {}
         self._patch_ops = None
+        self._compat = None
         self._calls = 0
         self._inverse_from = 3  # the call of solve() that forms the inverses (expect_repeats: the first)
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
@@ -213,28 +214,35 @@ class PatchSolver:
         self._inverse_from = min(self._inverse_from, self._calls + 1)
 
     def operators(self, key, space, form_of_hat, reference=None):
-        """The three sparse matrices (Y.ndof x space.ndof) of the bilinear forms
-        ``form_of_hat(hat_i)`` (trial functions of ``space``, test functions of ``self.Y``),
-        built once per ``key`` and kept: by ``reference(self)`` (the same matrices by other means, e.g.
-        :func:`.mixed_blocks.flux_operators`) unless it is None or returns None, else assembled."""
-        from scipy.sparse import csr_matrix
+        """The sparse matrix (3 ne nI x space.ndof) of the bilinear forms ``form_of_hat(hat_i)`` (trial functions
+        of ``space``, test functions of ``self.Y``), its rows in the layout of the right-hand sides of
+        :meth:`solve` (hat i, element K, local dof: V, then Q), built once per ``key`` and kept: by
+        ``reference(self)`` (the same matrix by other means, e.g. :func:`.mixed_blocks.flux_operators`) unless it
+        is None or returns None, else assembled (three assemblies, rows reordered)."""
+        from scipy.sparse import csr_matrix, vstack
 
         if key not in self._ops:
-            mats = reference(self) if reference is not None else None
-            if mats is not None:
-                self._ops[key] = (space, mats)
-                return mats
-            mats = []
-            with TaskManager():
-                for hat in self.hats:
-                    bf = BilinearForm(space, self.Y)
-                    bf += form_of_hat(hat)
-                    bf.Assemble()
-                    data, indices, indptr = bf.mat.CSR()
-                    mats.append(csr_matrix((np.array(data), np.array(indices), np.array(indptr)),
-                                           shape=(bf.mat.height, bf.mat.width)))
-            self._ops[key] = (space, mats)  # the space is kept alive: its id in the key stays unique
+            mat = reference(self) if reference is not None else None
+            if mat is None:
+                mats = []
+                with TaskManager():
+                    for hat in self.hats:
+                        bf = BilinearForm(space, self.Y)
+                        bf += form_of_hat(hat)
+                        bf.Assemble()
+                        data, indices, indptr = bf.mat.CSR()
+                        mats.append(csr_matrix((np.array(data), np.array(indices), np.array(indptr)),
+                                               shape=(bf.mat.height, bf.mat.width)))
+                mat = vstack(mats, format="csr")[self._layout_rows()]
+            self._ops[key] = (space, mat)  # the space is kept alive: its id in the key stays unique
         return self._ops[key][1]
+
+    def _layout_rows(self) -> np.ndarray:
+        """Rows of the three stacked Y-vectors (hat i: rows i Y.ndof + dof) in the layout of :meth:`solve`."""
+        ne, nV, nQ = self.mesh.ne, self.nV, self.nQ
+        K = np.arange(ne)[:, None]
+        rows = np.concatenate([K * nV + np.arange(nV), self.offQ + K * nQ + np.arange(nQ)], axis=1).ravel()
+        return (np.arange(3)[:, None] * self.Y.ndof + rows).ravel()
 
     def vertex_mass(self, bonus: int = 0) -> np.ndarray:
         """M[i, K, j] = (psi_i, w_j)_K for the local hat psi_i and the P_q basis w_j of K (kept per
@@ -299,18 +307,25 @@ class PatchSolver:
             S += z[:, :, None] * z[:, None, :]
         return S
 
+    def _layout(self, vec: np.ndarray) -> np.ndarray:
+        """(ne, nI): a vector of Y = V x Q (V dofs, then Q dofs; those of K consecutive) element by element."""
+        ne = self.mesh.ne
+        return np.concatenate([vec[:self.offQ].reshape(ne, self.nV), vec[self.offQ:self.offF].reshape(ne, self.nQ)],
+                              axis=1)
+
     def fixed_vectors(self, owner, lf_of_hat) -> np.ndarray:
-        """(3, Y.ndof): the assembled ``lf_of_hat(hat_i)``, kept while ``owner`` (the data the form is built of,
-        e.g. a load CoefficientFunction) is the same object; the last :attr:`FIXED_KEPT` owners are kept."""
+        """(3, ne, nI): the assembled ``lf_of_hat(hat_i)`` in the layout of :meth:`_layout`, kept while ``owner``
+        (the data the form is built of, e.g. a load CoefficientFunction) is the same object; the last
+        :attr:`FIXED_KEPT` owners are kept."""
         hit = self._fixed.get(id(owner))
         if hit is not None and hit[0] is owner:
             return hit[1]
-        vecs = np.empty((3, self.Y.ndof))
+        vecs = np.empty((3, self.mesh.ne, self.nI))
         with TaskManager():
             for i, hat in enumerate(self.hats):
                 form = LinearForm(self.Y)
                 form += lf_of_hat(hat)
-                vecs[i] = form.Assemble().vec.FV().NumPy()
+                vecs[i] = self._layout(form.Assemble().vec.FV().NumPy())
         if len(self._fixed) >= self.FIXED_KEPT:
             self._fixed.pop(next(iter(self._fixed)))
         self._fixed[id(owner)] = (owner, vecs)  # the owner is referenced: its id stays unique
@@ -329,8 +344,8 @@ class PatchSolver:
             ``self.Y`` = V x Q (test functions of Y) with every integrand multiplied by hat.
         linear : list of (tuple, list of tuples or None), optional
             per field, further right-hand side parts ``(key, space, form_of_hat, coefficients,
-            scale[, reference])``: scale * B_i @ coefficients with B_i = :meth:`operators` (key, space,
-            form_of_hat[, reference])[i].
+            scale[, reference])``: scale * B @ coefficients with B = :meth:`operators` (key, space,
+            form_of_hat[, reference]) (the three hats' parts).
         vertex : list of (list or None), optional
             per field, source terms ``(values, bonus, shape)``: patch a sees -(psi_a g_a, w) with
             g_a|_K = values[K, i] for the local vertex i of K that is a (values (ne, 3)), i.e. the
@@ -355,33 +370,25 @@ class PatchSolver:
         with TaskManager():
             for f, (lf_of_hat, lin, fix) in enumerate(zip(lfs, linear, fixed)):
                 lins = [] if lin is None else (lin if isinstance(lin, list) else [lin])
-                mats = [self.operators(*part[:3], *part[5:6]) for part in lins]
-                kept = self.fixed_vectors(*fix) if fix is not None else None
-                for i, hat in enumerate(self.hats):
-                    vec = np.zeros(self.Y.ndof) if kept is None else kept[i].copy()
-                    if lf_of_hat is not None:
+                if fix is not None:  # kept in the layout of b
+                    b[f] = self.fixed_vectors(*fix)
+                for part in lins:  # the three hats' operators in one matrix, rows in the layout of b
+                    b[f] += part[4] * (self.operators(*part[:3], *part[5:6]) @ part[3]).reshape(3, ne, nI)
+                if lf_of_hat is not None:
+                    for i, hat in enumerate(self.hats):
                         form = LinearForm(self.Y)
                         form += lf_of_hat(hat)
-                        vec += form.Assemble().vec.FV().NumPy()
-                    for part, ops in zip(lins, mats):
-                        vec += part[4] * (ops[i] @ part[3])
-                    b[f, i, :, :nV] = vec[:self.offQ].reshape(ne, nV)
-                    b[f, i, :, nV:] = vec[self.offQ:self.offF].reshape(ne, self.nQ)
+                        b[f, i] += self._layout(form.Assemble().vec.FV().NumPy())
         for f, terms in enumerate(vertex or []):
             for values, bonus, shape in terms or []:
                 M = self.vertex_mass(bonus) if shape is None else self.shaped_mass(shape, bonus)
                 b[f, :, :, nV:] -= np.asarray(values, float).T[:, :, None] * M
         # interior patches: the constant source making the patch data compatible (module doc)
         tested = (b[:, :, :, nV:] * self.one_Q[None, None]).sum(axis=3)   # w-rhs tested with w = 1
-        for G in self.groups:
-            if not G["interior"].any():
-                continue
-            pairs = G["pairs"][G["interior"]]
-            K, i = self.pair_K[pairs], self.pair_i[pairs]
-            for f in range(nf):
-                kappa = -tested[f, i, K].sum(axis=1) / G["area"][G["interior"]]
-                # every (i, K) pair belongs to exactly one patch: plain fancy-index addition
-                b[f, i, K, nV:] += kappa[:, None, None] * self.mass_Q[K]
+        P, Pt, scale = self._compatibility()
+        if P.shape[0]:  # kappa of the patch of every (i, K) pair (zero outside the interior patches)
+            kappa = Pt @ (scale[:, None] * (P @ tested.reshape(nf, 3 * ne).T))      # (3 ne, nf)
+            b[:, :, :, nV:] += kappa.T.reshape(nf, 3, ne)[:, :, :, None] * self.mass_Q[None, None]
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
         g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
         ops = self._patch_operators()
@@ -405,6 +412,29 @@ class PatchSolver:
             x = xb[:, :, f] - np.einsum("kif,kf->ki", self.W, msum[f])
             out.append(x[:, :nV].copy())
         return out
+
+    def _compatibility(self):
+        """(P, P^T, -1 / |T_a|): P sums over the (hat i, element K) pairs (column i ne + K) of every interior
+        patch (rows); kappa_a = -sum of the tested right-hand sides of patch a / |T_a| (kept)."""
+        if self._compat is None:
+            from scipy.sparse import csr_matrix
+
+            ne = self.mesh.ne
+            rows, cols, scale, n = [], [], [], 0
+            for G in self.groups:
+                sel = G["interior"]
+                if not sel.any():
+                    continue
+                pairs = G["pairs"][sel]                                    # (np, n)
+                rows.append(np.repeat(n + np.arange(len(pairs)), pairs.shape[1]))
+                cols.append((self.pair_i[pairs] * ne + self.pair_K[pairs]).ravel())
+                scale.append(-1.0 / G["area"][sel])
+                n += len(pairs)
+            cat = (lambda a, dt: np.concatenate(a) if a else np.zeros(0, dtype=dt))
+            r, c = cat(rows, np.int64), cat(cols, np.int64)
+            P = csr_matrix((np.ones(len(r)), (r, c)), shape=(n, 3 * ne))
+            self._compat = (P, P.T.tocsr(), cat(scale, float))
+        return self._compat
 
     def _patch_loop(self, g, nf: int) -> np.ndarray:
         """msum (nf, ne, nF3): the patch solutions for the condensed right-hand sides g (nf, 3, ne, nF3), summed
@@ -445,36 +475,38 @@ class PatchSolver:
             return None
         ne, nF3 = self.mesh.ne, self.nF3
         n_in = 3 * ne * nF3
-        unknown = np.full(n_in, -1, dtype=np.int64)  # patch unknown of (hat i, element K, facet dof t)
+        chunks = [(gi, c0, G) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
+        sizes = [len(G["pairs"][c0:c0 + self.CHUNK]) * G["m"] for _, c0, G in chunks]
+        base, nnz = int(sum(sizes)), int(sum(n * G["m"] for n, (_, _, G) in zip(sizes, chunks)))
+        itype = np.int32 if max(base, nnz, n_in) < np.iinfo(np.int32).max else np.int64
+        unknown = np.full(n_in, -1, dtype=itype)  # patch unknown of (hat i, element K, facet dof t)
         free = np.zeros(n_in, dtype=bool)
-        sv, sc, row_len, base = [], [], [], 0
-        for gi, G in enumerate(self.groups):
-            m = G["m"]
-            for c0 in range(0, len(G["pairs"]), self.CHUNK):
-                sl = slice(c0, c0 + self.CHUNK)
-                pairs, loc = G["pairs"][sl], G["loc"][sl]                          # (np, n), (np, n, nF3)
-                npch = len(pairs)
-                K, i = self.pair_K[pairs], self.pair_i[pairs]
-                col = ((i[:, :, None] * ne + K[:, :, None]) * nF3 + np.arange(nF3)).ravel()
-                unknown[col] = (base + np.arange(npch)[:, None, None] * m + loc).ravel()
-                fixed = np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1)
-                free[col] = ~fixed.ravel()
-                sv.append(self._inv_cache[(gi, c0)].ravel())
-                first = base + np.arange(npch)[:, None, None] * m                   # (np, 1, 1)
-                sc.append(np.broadcast_to(first + np.arange(m)[None, None, :], (npch, m, m)).ravel())
-                row_len.append(np.full(npch * m, m, dtype=np.int64))
-                base += npch * m
+        data, cols = np.empty(nnz), np.empty(nnz, dtype=itype)  # S_inv, filled chunk by chunk
+        indptr = np.empty(base + 1, dtype=itype)
+        indptr[0] = 0
+        start = at = 0
+        for (gi, c0, G), size in zip(chunks, sizes):
+            m, sl = G["m"], slice(c0, c0 + self.CHUNK)
+            pairs, loc = G["pairs"][sl], G["loc"][sl]                              # (np, n), (np, n, nF3)
+            npch = len(pairs)
+            K, i = self.pair_K[pairs], self.pair_i[pairs]
+            col = ((i[:, :, None] * ne + K[:, :, None]) * nF3 + np.arange(nF3)).ravel()
+            unknown[col] = (start + np.arange(npch)[:, None, None] * m + loc).ravel()
+            free[col] = ~np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1).ravel()
+            # row j of patch p: row j of its inverse at the patch's columns
+            data[at:at + size * m] = self._inv_cache[(gi, c0)].ravel()
+            cols[at:at + size * m].reshape(npch, m, m)[...] = (start + np.arange(npch)[:, None, None] * m
+                                                                + np.arange(m)[None, None, :])
+            indptr[start + 1:start + size + 1] = at + m * np.arange(1, size + 1)
+            start, at = start + size, at + size * m
         if unknown.min() < 0:  # pragma: no cover - every (hat, element) pair lies in one patch
             raise RuntimeError("a (hat, element) pair outside the vertex patches")
         # E: column (i, K, t) -> its patch unknown, if that one is free
-        E = csc_matrix((np.ones(int(free.sum())), unknown[free], np.concatenate([[0], np.cumsum(free)])),
+        E = csc_matrix((np.ones(int(free.sum())), unknown[free], np.concatenate([[0], np.cumsum(free)]).astype(itype)),
                        shape=(base, n_in)).tocsr()
-        # S_inv: row j of patch p holds row j of its inverse at the patch's columns
-        indptr = np.concatenate([[0], np.cumsum(np.concatenate(row_len))])
-        cols = np.concatenate(sc)
-        S_inv = csr_matrix((np.concatenate(sv), cols, indptr), shape=(base, base))
+        S_inv = csr_matrix((data, cols, indptr), shape=(base, base))
         # Gt: facet dof (K, t) gathers the unknowns of its three vertex patches
         Gt = csr_matrix((np.ones(n_in), np.sort(unknown.reshape(3, ne * nF3).T, axis=1).ravel(),
-                         np.arange(0, n_in + 1, 3)), shape=(ne * nF3, base))
+                         np.arange(0, n_in + 1, 3, dtype=itype)), shape=(ne * nF3, base))
         self._patch_ops = (E, S_inv, Gt)
         return self._patch_ops
