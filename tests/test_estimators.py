@@ -402,6 +402,25 @@ def test_contact_fit_reweighting_removes_negative_lobes(solved_scene):
     assert est.err_energy <= est.eta < plain.eta
 
 
+def test_contact_fit_matrices_are_kept_for_the_same_weights(solved_scene):
+    """The contact-weighted fit keeps its weighted mass matrices and factorizations per discretization: the same
+    iterate again (the same contact set and reweighting rounds, as between the evaluations inside a Newton step)
+    factorizes nothing and gives the same estimate; another contact set adds new ones."""
+    from ngcontact.estimators.view import DiscretizationView
+
+    scene, disc, sol = solved_scene("lshape", 0, 3)
+    fit = EstimatorOptions(multiplier="fit")
+    first = estimate(disc, sol.x, sol.y, fit)
+    kept = DiscretizationView.of(disc).cache["contact_fit_matrices"]
+    before = [id(e[2]) for e in kept]
+    again = estimate(disc, sol.x, sol.y, fit)
+    assert [id(e[2]) for e in kept] == before
+    assert again.eta == pytest.approx(first.eta, rel=1e-12)
+    y = np.where(np.arange(len(sol.y)) % 2 == 0, sol.y, 0.0)  # half of the contact vertices
+    estimate(disc, sol.x, y, fit)
+    assert [id(e[2]) for e in kept] != before
+
+
 @pytest.mark.parametrize("scene,p,level,expect", [("lshape", 3, 0, None), ("disk_fitted", 3, 0, "fit")])
 def test_default_multiplier_is_the_smaller_of_fit_and_shape(scene, p, level, expect):
     """RT_3: the default estimate is the smaller of the two guaranteed bounds (contact-weighted fit,

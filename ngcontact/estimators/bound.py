@@ -102,7 +102,7 @@ from ngsolve import L2, GridFunction, TaskManager
 
 from .dirichlet import dirichlet_lifting
 from .flux import FluxReconstruction, reconstruct, reconstruct_several, vertex_device_exact
-from .nonnegative import QuadratureArrays, concentrated_multiplier
+from .nonnegative import concentrated_multiplier
 from .options import EstimatorOptions
 from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, flux_rule_order,
                     negative_part_squares, nonconformity, nonnegative_part)
@@ -353,7 +353,7 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         if opts.concentrates(p):
             # lam~ moved towards the small gaps inside every element (:func:`concentrated_multiplier`)
             if "qa" not in shared:
-                qa = QuadratureArrays(dv.mesh, 2 * p + 6)
+                qa = ig.quadrature(2 * p + 6)
                 shared["qa"] = qa, qa.values(gap), qa.values(corr)
             qa, gap_v, corr_v = shared["qa"]
             lam_v = qa.values(lam_t)

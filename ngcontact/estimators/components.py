@@ -121,7 +121,7 @@ from .flux import (PatchData, equilibrate_all, flux_bonus, patch_regularization,
                    vertex_device_exact)
 from .moments import data_rules, p1_from_functional, vertex_function_values, vertex_moment_term, vertex_rule
 from .multipliers import ContactMultiplier, PatchContactMultiplier
-from .nonnegative import QuadratureArrays, concentrated_multiplier
+from .nonnegative import concentrated_multiplier
 from .options import EstimatorOptions
 from .terms import (Integrals, admissible_correction, contact_work, corrected_fields, defect_norm, direct_root,
                     flux_residual, nonnegative_part, split)
@@ -321,7 +321,7 @@ def _contact_terms(ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, 
     towards the small gaps in every element, as in :func:`.bound.estimate` (the mean-free defect goes to
     eta_nonc2,disc); Theta of the direct bound split like the corrections: s~ - s_h - w_h (disc), s_h - u_h
     (lin)."""
-    qa = QuadratureArrays(ig.mesh, 2 * p + 6)
+    qa = ig.quadrature(2 * p + 6)
     lam_v, gap_v = qa.values(lam_t), qa.values(gap)
     cd_v, cl_v = qa.values(corr_d), qa.values(c)
     if opts.concentrates(p):

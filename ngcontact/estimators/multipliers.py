@@ -107,6 +107,7 @@ class ContactMultiplier:
 
     ROUNDS = 3    #: reweighting rounds against negative lobes (class doc)
     DAMP = 1e-3   #: weight factor of an element with negative lam^ per round
+    KEPT = 4      #: weighted mass matrices and factorizations kept per discretization (repeated evaluations)
 
     def __init__(self, dv: DiscretizationView, y_marker, *, mixed: float = 1e-9, empty: float = 1e-12,
                  tol: float = 1e-8):
@@ -119,15 +120,24 @@ class ContactMultiplier:
         self.n_contact_elements = int((k == 3).sum())
         P0 = L2(mesh, order=0)
         self.weight = GridFunction(P0, name="contact_weight")
-        self.V = H1(mesh, order=1, dirichlet=DIRICHLET)  # the interior vertices carry constraints
-        self._free = np.array(list(self.V.FreeDofs()), dtype=bool)
+        if "contact_fit_space" not in dv.cache:
+            V = H1(mesh, order=1, dirichlet=DIRICHLET)  # the interior vertices carry constraints
+            dv.cache["contact_fit_space"] = (V, np.array(list(V.FreeDofs()), dtype=bool))
+        self.V, self._free = dv.cache["contact_fit_space"]
         u, v = self.V.TnT()
         m0 = self.Psi.T @ (dv.D * np.maximum(np.asarray(y_marker, float), 0.0))
+        kept = dv.cache.setdefault("contact_fit_matrices", [])  # [(weights, matrix, factorization)], newest last
         for r in range(self.ROUNDS + 1):
             self.weight.vec.FV().NumPy()[:] = winv
-            with TaskManager():
-                a = self._a = BilinearForm(self.weight * u * v * dx(intrules=data_rules(dv)["mass"])).Assemble()
-                self._inv = a.mat.Inverse(self.V.FreeDofs(), inverse="sparsecholesky")
+            hit = next((e for e in kept if np.array_equal(e[0], winv)), None)
+            if hit is None:  # the same weights (the same contact set along a Newton step): the same matrix
+                with TaskManager():
+                    a = BilinearForm(self.weight * u * v * dx(intrules=data_rules(dv)["mass"])).Assemble()
+                    hit = (winv.copy(), a, a.mat.Inverse(self.V.FreeDofs(), inverse="sparsecholesky"))
+                kept.append(hit)
+                if len(kept) > self.KEPT:
+                    kept.pop(0)
+            _, self._a, self._inv = hit
             if r == self.ROUNDS:
                 break
             rhs = GridFunction(self.V)

@@ -34,14 +34,14 @@ Admissible s~_h:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from ngsolve import (BND, L2, SEGM, TRIG, BilinearForm, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
                      Integrate, IntegrationRule, LinearForm, VectorL2, div, dx, grad, x, y)
 
 from ..domains import DIRICHLET
-from .nonnegative import nonnegative_multiplier
+from .nonnegative import QuadratureArrays, nonnegative_multiplier
 from .options import EstimatorOptions
 from .view import DiscretizationView, SolutionView
 
@@ -158,6 +158,9 @@ class Integrals:
         Friedrichs constant and (sum_a 1/mu_a)^{1/2}.
     dual : P0Dual
         the RT_0 lifting of element means (its factorization is kept per discretization).
+    rules : dict
+        the :class:`.nonnegative.QuadratureArrays` of the mesh per order (:meth:`quadrature`; kept per
+        discretization).
     """
 
     mesh: object
@@ -167,6 +170,7 @@ class Integrals:
     C_F: float
     C_mu: float
     dual: P0Dual
+    rules: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, dv: DiscretizationView, options: EstimatorOptions) -> "Integrals":
@@ -183,7 +187,14 @@ class Integrals:
         bonus = dv.quad_bonus + 4 if options.quad_bonus is None else options.quad_bonus
         C_F = cache["C_F"] if options.friedrichs is None else float(options.friedrichs)
         return cls(mesh=mesh, bonus=bonus, h=cache["h"], area=cache["area"], C_F=C_F,
-                   C_mu=math.sqrt(sum(1.0 / mu for mu in dv.mus)), dual=cache["dual"])
+                   C_mu=math.sqrt(sum(1.0 / mu for mu in dv.mus)), dual=cache["dual"],
+                   rules=cache.setdefault("quadrature_arrays", {}))
+
+    def quadrature(self, order: int) -> QuadratureArrays:
+        """The points and weights of the triangle rule of ``order`` on every element (kept)."""
+        if order not in self.rules:
+            self.rules[order] = QuadratureArrays(self.mesh, order)
+        return self.rules[order]
 
     @property
     def dxq(self):
