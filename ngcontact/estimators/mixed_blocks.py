@@ -231,16 +231,16 @@ def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bo
     B, det = tri.B, tri.det
     BtB = np.einsum("kia,kib->kab", B, B)
     H = np.linalg.inv(BtB) * det[:, None, None]
-    order = np.argsort(udofs, axis=1)                               # sorted column indices per row
-    cols = np.take_along_axis(udofs, order, axis=1)
     nI = nV + nQ
-    indices = np.broadcast_to(cols[None, :, None, :], (3, ne, nI, nU)).ravel()
-    indptr = np.arange(3 * ne * nI + 1, dtype=np.int64) * nU
+    big = max(3 * ne * nI * nU, space.ndof) >= np.iinfo(np.int32).max
+    itype = np.int64 if big else np.int32
+    # every row holds the element's dofs in their local order (a valid CSR for products; not sorted)
+    indices = np.broadcast_to(udofs.astype(itype)[None, :, None, :], (3, ne, nI, nU)).ravel()
+    indptr = np.arange(3 * ne * nI + 1, dtype=itype) * nU
     data = np.empty((3, ne, nI, nU))
     for i in range(3):
         c_i = H @ _HAT_GRADS[i]                                     # (ne, 2)
         for c, sel in tri.classes():
             data[i, sel, :nV] = -Ft[c][i]
             data[i, sel, nV:] = np.einsum("kb,bjn->kjn", c_i[sel], E[c])
-        data[i] = np.take_along_axis(data[i], order[:, None, :], axis=2)
     return csr_matrix((data.ravel(), indices, indptr), shape=(3 * ne * nI, space.ndof))
