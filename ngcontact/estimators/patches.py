@@ -397,7 +397,9 @@ class PatchSolver:
             ops = self._patch_operators()
         if ops is not None:  # every patch inverse is kept: scatter, inverses and gather as three sparse products
             E, S_inv, Gt = ops
-            msum = (Gt @ (S_inv @ (E @ g.reshape(nf, -1).T))).T.reshape(nf, ne, nF3)
+            # one right-hand side at a time: scipy's product with several vectors is slower than as many
+            # products with one (S_inv, the largest, is read once per vector either way)
+            msum = np.stack([Gt @ (S_inv @ (E @ gf)) for gf in g.reshape(nf, -1)]).reshape(nf, ne, nF3)
         else:
             msum = self._patch_loop(g, nf)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
