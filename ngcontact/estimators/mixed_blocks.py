@@ -138,6 +138,7 @@ class AffineTriangles:
     B: np.ndarray       # (ne, 2, 2)
     det: np.ndarray     # (ne,)
     cls: np.ndarray     # (ne,) index into RANKINGS
+    vertices: np.ndarray = None  # (ne, 3) vertex numbers in the local order (the dofs of H1 order 1)
 
     @classmethod
     def of(cls, mesh) -> Optional["AffineTriangles"]:
@@ -154,7 +155,7 @@ class AffineTriangles:
         lookup = np.full(27, -1, dtype=np.int64)
         for c, r in enumerate(RANKINGS):
             lookup[r[0] * 9 + r[1] * 3 + r[2]] = c
-        return cls(B=B, det=det, cls=lookup[rank[:, 0] * 9 + rank[:, 1] * 3 + rank[:, 2]])
+        return cls(B=B, det=det, cls=lookup[rank[:, 0] * 9 + rank[:, 1] * 3 + rank[:, 2]], vertices=ev)
 
     def classes(self):
         """(class index, its elements) for the classes present."""
@@ -225,7 +226,9 @@ def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bo
     nV, nQ, nU = Ft.shape[2], E.shape[2], Ft.shape[3]
     if V.ndof != ne * nV or Q.ndof != ne * nQ:
         return None
-    udofs = _element_dofs(space, ne)
+    # P1: the dofs of K are its vertices in the local order (GetDofNrs element by element otherwise)
+    p1 = p == 1 and tri.vertices is not None and space.ndof == space.mesh.nv
+    udofs = tri.vertices.astype(np.int64) if p1 else _element_dofs(space, ne)
     if udofs.shape[1] != nU:
         return None
     B, det = tri.B, tri.det
