@@ -30,6 +30,7 @@ import numpy as np
 from ngsolve import VOL, GridFunction, IntegrationRule
 
 from .nonnegative import QuadratureArrays
+from .patches import local_hats
 
 __all__ = ["P1Arrays", "applies"]
 
@@ -78,7 +79,7 @@ class P1Arrays:
         g0 = np.stack([e2[:, 1], -e2[:, 0]], axis=1) / det[:, None]
         g1 = np.stack([-e1[:, 1], e1[:, 0]], axis=1) / det[:, None]
         self.grad_lam = np.stack([g0, g1, -g0 - g1], axis=1)  # (ne, 3, 2)
-        self._rules = {}
+        self._rules = dv.cache.setdefault("quadrature_arrays", {})  # shared with terms.Integrals.quadrature
         self.q4 = self.rule(4)  # exact for the squares of RT_1 fields
         self._rt = {}
         self._loads = {}
@@ -179,21 +180,10 @@ class P1Arrays:
         return out
 
     def _hats(self):
-        """The barycentric coordinates lambda_j of every element as ``Discontinuous(H1(order=1))`` GridFunctions
-        (kept; local dof j is the vertex ``pv[K, j]``, checked in the constructor)."""
+        """The barycentric coordinates lambda_j of every element (:func:`.patches.local_hats`, kept; local vertex j
+        is ``pv[K, j]``, checked in the constructor)."""
         if self._hat_gfs is None:
-            from ngsolve import H1, Discontinuous
-
-            D1 = Discontinuous(H1(self.mesh, order=1))
-            ne = self.mesh.ne
-            hats = []
-            for i in range(3):
-                g = GridFunction(D1)
-                vals = np.zeros((ne, 3))
-                vals[:, i] = 1.0
-                g.vec.FV().NumPy()[:] = vals.ravel()
-                hats.append(g)
-            self._hat_gfs = hats
+            self._hat_gfs = local_hats(self.mesh)
         return self._hat_gfs
 
     # ------------------------------------------------------------ the terms

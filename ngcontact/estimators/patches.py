@@ -55,7 +55,21 @@ import numpy as np
 from ngsolve import (H1, BilinearForm, CoefficientFunction, Discontinuous, GridFunction, LinearForm, TaskManager,
                      VOL, ElementId, dx)
 
-__all__ = ["PatchSolver"]
+__all__ = ["PatchSolver", "local_hats"]
+
+
+def local_hats(mesh) -> list:
+    """The barycentric coordinates of every element as three ``Discontinuous(H1(order=1))`` GridFunctions (hat i:
+    1 at the local vertex i of every element, 0 at the others)."""
+    D1 = Discontinuous(H1(mesh, order=1))
+    hats = []
+    for i in range(3):
+        g = GridFunction(D1)
+        vals = np.zeros((mesh.ne, 3))
+        vals[:, i] = 1.0
+        g.vec.FV().NumPy()[:] = vals.ravel()
+        hats.append(g)
+    return hats
 
 
 def _scatter_add(shape, flat_index, values) -> np.ndarray:
@@ -191,15 +205,7 @@ class PatchSolver:
         self._inverse_from = 3  # the call of solve() that forms the inverses (expect_repeats: the first)
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
         self._keep_inverses = nbytes <= self.CACHE_BYTES
-        # local-vertex hat functions (barycentric coordinates of K)
-        D1 = Discontinuous(H1(mesh, order=1))
-        self.hats = []
-        for i in range(3):
-            g = GridFunction(D1)
-            vals = np.zeros((ne, 3))
-            vals[:, i] = 1.0
-            g.vec.FV().NumPy()[:] = vals.ravel()
-            self.hats.append(g)
+        self.hats = local_hats(mesh)  # local-vertex hat functions (barycentric coordinates of K)
 
     #: patches per batched solve (bounded work arrays: the first touch of fresh memory costs as
     #: much as the arithmetic here)
