@@ -229,3 +229,41 @@ def test_multigrid_newton_with_tensions_twelve_orders_apart():
     out = run_case(case, estimate=False, newton="multigrid")
     assert out.status == "converged", out.reason
     assert all(r["certified"] == 1 for r in out.rows) and out.rows[-1]["cg_its"] > 0
+
+
+def _split_off(opts):
+    object.__setattr__(opts, "linear", replace(opts.linear, split=False))
+    return opts
+
+
+@pytest.mark.parametrize("scene,cfun,levels", [("test2", "min", 4), ("full_contact", "min", 4), ("test1", "fb", 4)])
+def test_two_membrane_steps_through_the_split_match_the_coupled_solves(scene, cfun, levels):
+    """The s/w splitting of the coupled steps (newton/split.py; test2: s != 0, full_contact: mu2 / mu1 = 2,
+    Newton-FB: mixed rows): the Newton counts, active sets and solution of the coupled CG + multigrid steps.
+    Newton-min: every step of the levels >= 1 goes through it; Newton-FB: the steps whose mixed rows' weights
+    D w leave CG at its rounding floor above the units test go to the coupled solve, the others split."""
+    sc = load_scene(scene)
+    split = run_scene(sc, RunOptions(levels=levels, newton="multigrid", cfun=cfun))
+    coupled = run_scene(sc, _split_off(RunOptions(levels=levels, newton="multigrid", cfun=cfun)))
+    steps = [it for it in split.iterations if it["level"] > 0 and it["k"] > 0]
+    assert steps and sum(it["split"] for it in steps) >= len(steps) // 2
+    assert cfun != "min" or all(it["split"] == 1 for it in steps)
+    assert not any(it["split"] for it in coupled.iterations)
+    for a, b in zip(coupled.rows, split.rows):
+        assert a["newton_its"] == b["newton_its"] and a["active_nodes"] == b["active_nodes"]
+        assert b["newton_converged"] == 1 and b["certified"] == 1
+        assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-8)
+    assert np.abs(split.x - coupled.x).max() <= 1e-9 * np.abs(coupled.x).max()
+
+
+def test_split_is_not_used_for_tensions_far_apart():
+    """mu2 / mu1 = 1e4 > SPLIT_ALPHA: x_2 = (s - w) / (1 + alpha) would lose four digits; the coupled steps
+    solve it (and converge)."""
+    from ngcontact.newton.split import SPLIT_ALPHA
+
+    sc = load_scene("full_contact")
+    assert 1e4 > SPLIT_ALPHA
+    sc = replace(sc, problem=replace(sc.problem, mu2=1e4 * sc.problem.mu1))
+    res = run_scene(sc, RunOptions(levels=3, newton="multigrid"))
+    assert res.converged and not any(it["split"] for it in res.iterations)
+    assert any(it["pcg_its"] for it in res.iterations)

@@ -68,14 +68,14 @@ def _session_steps():
 
 def test_multigrid_session_shares_the_reduced_matrix_of_unchanged_rows():
     session, lin1, lin2, lin3 = _session_steps()
-    mg, how = session._hierarchy(lin1)
+    mg, how = session.hierarchy.get(lin1)
     assert how == 1
     A1 = mg.levels[0].A
-    mg2, how = session._hierarchy(lin2)
+    mg2, how = session.hierarchy.get(lin2)
     assert how == 0 and mg2 is mg and lin2._A is A1  # not formed again
     want = submatrix(lin2._Kaug, lin2.keep, lin2.keep)
     assert (lin2.A != want).nnz == 0
-    mg3, how = session._hierarchy(lin3)
+    mg3, how = session.hierarchy.get(lin3)
     assert how == 2 and mg.levels[0].A is None  # the old finest matrix was released before the update
     assert mg3.levels[0].A is lin3.A and (lin3.A != submatrix(lin3._Kaug, lin3.keep, lin3.keep)).nnz == 0
 

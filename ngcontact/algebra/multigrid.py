@@ -36,7 +36,8 @@ import scipy.sparse as sp
 
 from .linalg import SPDSolver
 
-__all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "SMOOTHERS", "p1_prolongation", "field_prolongation"]
+__all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "HierarchyCache", "SMOOTHERS", "p1_prolongation",
+           "field_prolongation"]
 
 #: V-cycle smoothers of :class:`Multigrid`
 SMOOTHERS = ("gauss-seidel", "chebyshev")
@@ -237,3 +238,43 @@ class AlgebraicMultigrid:
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
         return self._M @ np.asarray(r, dtype=float)
+
+
+class HierarchyCache:
+    """The V-cycle of the successive reduced systems of one Newton run: reused while the row classes of the
+    steps do not change, its finest level updated when at most ``update_fraction`` of the reduced unknowns
+    changed class (:meth:`Multigrid.updated`; an algebraic one is rebuilt), otherwise rebuilt.
+
+    ``prolongations``: the nested prolongations (empty: :class:`AlgebraicMultigrid`); ``opt``: the multigrid
+    settings (``update_fraction``, ``degree``, ``ratio``, ``smoother``).  :meth:`get` takes a step with row
+    classes ``eq``, ``mixed``, ``w``, kept unknowns ``keep``, ``size``, the reduced matrix ``A`` and
+    ``share_matrix`` (:class:`~ngcontact.algebra.system.LinearizedStep`)."""
+
+    def __init__(self, prolongations, opt, solver: str):
+        self.prolongations, self.opt, self.solver = tuple(prolongations), opt, solver
+        self.mg = None
+        self._rows = None  # row classes the hierarchy was built for
+
+    def get(self, lin):
+        """(V-cycle, how): 0 reused, 1 built, 2 finest level updated."""
+        rows = (lin.eq, lin.mixed, lin.w)
+        if self.mg is not None:
+            changed = sum(int(np.count_nonzero(a != b)) for a, b in zip(rows, self._rows))
+            if changed == 0:
+                if isinstance(self.mg, Multigrid):  # the same row classes: the same reduced matrix, not formed again
+                    lin.share_matrix(self.mg.levels[0].A)
+                return self.mg, 0
+            if changed <= self.opt.update_fraction * lin.size:
+                self.mg.levels[0].A = None  # the old finest matrix goes before the new one is formed
+                self.mg = self.mg.updated(lin.A, lin.keep)
+                self._rows = tuple(np.array(a, copy=True) for a in rows)
+                return self.mg, 2
+        self.mg = None  # free the old hierarchy first
+        opt = self.opt
+        if self.prolongations:
+            self.mg = Multigrid(lin.A, self.prolongations, lin.keep, degree=opt.degree, ratio=opt.ratio,
+                                solver=self.solver, smoother=opt.smoother)
+        else:
+            self.mg = AlgebraicMultigrid(lin.A)
+        self._rows = tuple(np.array(a, copy=True) for a in rows)
+        return self.mg, 1

@@ -277,9 +277,17 @@ class ComplementaritySystem:
             return x, y
         if one.all() and self.WARM_SWEEPS:
             dK = self.K.diagonal()
+            up, n = self.up, len(x)
+            every = len(up) == n and (n == 0 or (up[0] == 0 and up[-1] == n - 1 and bool(np.all(np.diff(up) == 1))))
             for _ in range(self.WARM_SWEEPS):
-                x += self.WARM_OMEGA * (self.F - self.K @ x) / dK
-                x[self.up] = np.maximum(x[self.up], self.b)
+                r = self.F - self.K @ x  # x += omega (F - K x) / dK, in place
+                r *= self.WARM_OMEGA
+                r /= dK
+                x += r
+                if every:  # an obstacle on every unknown, in order
+                    np.maximum(x, self.b, out=x)
+                else:
+                    x[up] = np.maximum(x[up], self.b)
         g = self.gap(x)
         rows = np.flatnonzero(one & (g < 0))
         x[self.up[rows]] -= g[rows]  # projection: g = 0 there
@@ -344,19 +352,23 @@ class ComplementaritySystem:
         red_index = -np.ones(n, dtype=np.int64)
         red_index[keep] = np.arange(keep.sum())
         nr = int(keep.sum())
-        # Z: identity on kept unknowns, slave (lo) = master (up) - target - b
-        zr = np.concatenate([np.flatnonzero(keep), slaves[slave_is_lo]])
-        zc = np.concatenate([np.arange(nr), red_index[masters[slave_is_lo]]])
-        Z = sp.csr_matrix((np.ones(len(zr)), (zr, zc)), shape=(n, nr))
+        # Z: identity on kept unknowns, slave (lo) = master (up) - target - b; at most one entry per row (a kept
+        # unknown's own column, a lower slave's master's), written as CSR directly
+        zcol = red_index.copy()
+        zcol[slaves[slave_is_lo]] = red_index[masters[slave_is_lo]]
+        has = zcol >= 0
+        itype = np.int32 if max(n, nr) < np.iinfo(np.int32).max else np.int64
+        zptr = np.zeros(n + 1, dtype=itype)
+        np.cumsum(has, out=zptr[1:])
+        Z = sp.csr_matrix((np.ones(int(zptr[-1])), zcol[has].astype(itype), zptr), shape=(n, nr))
         x_aff = np.zeros(n)
         tb = g_target[eq_rows] + self.b[eq_rows]
         x_aff[slaves] = np.where(slave_is_lo, -tb, tb)
 
-        bred = Z.T @ (rhs - Kaug @ x_aff)
-        # A = Z^T Kaug Z is formed on first use (the fixed-pattern factorization of FactorReuse does not
-        # need it)
-        return LinearizedStep(self, None, bred, Z, x_aff, keep, eq, mixed, y_fixed, c0, w,
-                              eq_rows, slaves, slave_is_lo, _Kaug=Kaug)
+        # A = Z^T Kaug Z and b = Z^T (rhs - Kaug x_aff) are formed on first use (the fixed-pattern factorization
+        # of FactorReuse does not need A, the s/w splitting of two membranes neither)
+        return LinearizedStep(self, None, None, Z, x_aff, keep, eq, mixed, y_fixed, c0, w,
+                              eq_rows, slaves, slave_is_lo, _Kaug=Kaug, _rhs=rhs)
 
 
 @dataclass
@@ -373,7 +385,7 @@ class LinearizedStep:
 
     system: "ComplementaritySystem"
     _A: Optional[sp.csr_matrix]
-    b: np.ndarray
+    _b: Optional[np.ndarray]
     Z: sp.csr_matrix
     x_aff: np.ndarray
     keep: np.ndarray
@@ -387,6 +399,14 @@ class LinearizedStep:
     slave_is_lo: np.ndarray
     _Kaug: Optional[sp.csr_matrix] = field(default=None, repr=False)
     _Ks: Optional[sp.csr_matrix] = field(default=None, repr=False)
+    _rhs: Optional[np.ndarray] = field(default=None, repr=False)  # right-hand side of the x-equation
+
+    @property
+    def b(self) -> np.ndarray:
+        """The reduced right-hand side Z^T (rhs - Kaug x_aff) (formed on first use)."""
+        if self._b is None:
+            self._b = self.Z.T @ (self._rhs - self._Kaug @ self.x_aff)
+        return self._b
 
     @property
     def A(self) -> sp.csr_matrix:
@@ -418,7 +438,8 @@ class LinearizedStep:
         x_new = self.Z @ z + self.x_aff
         y_new = self.y_fixed.copy()
         mixed, eq = self.mixed, self.eq
-        y_new[mixed] = self.c0[mixed] - self.w[mixed] * (s._B @ x_new - s.b)[mixed]
+        if mixed.any():
+            y_new[mixed] = self.c0[mixed] - self.w[mixed] * (s._B @ x_new - s.b)[mixed]
         if len(self.eq_rows):
             # the slave equations: (K x' - B^T D y' - F)[slave] = 0, where B^T D y' on the slave of row l is
             # +-D_l y'_l only (each unknown lies in at most one constraint row); the rows of K at the slaves only
@@ -434,3 +455,4 @@ class LinearizedStep:
         if self._Ks is None:
             self._Ks = self.system.K[self.slaves]
         return self._Ks
+

@@ -36,24 +36,30 @@ The hierarchy is reused while the row classes of the steps do not change (the la
 step, which confirms the active set, then costs a few CG iterations); when at most
 ``update_fraction`` of the reduced unknowns changed class, only its finest level is rebuilt
 (:meth:`~ngcontact.algebra.multigrid.Multigrid.updated`; the algebraic one is rebuilt), otherwise
-the whole hierarchy.  When PCG does not reach its target in ``maxiter`` iterations the step is
-factorized (recorded in ``linear_path``).
+the whole hierarchy (:class:`~ngcontact.algebra.multigrid.HierarchyCache`).  When PCG does not reach its
+target in ``maxiter`` iterations the step is factorized (recorded in ``linear_path``).
+
+Two membranes with K = blockdiag(S, alpha S) (``split``, exact mode): each coupled step is solved through the
+s/w splitting of :mod:`.split` -- one Poisson solve for s per Newton run, an obstacle-type w-system of half the
+size per step, no triple product Z^T K Z -- and accepted on the coupled step's own tests; a step that does not
+pass them is solved on the coupled system as above (the record's ``split`` says which).
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Tuple
 
 import numpy as np
 
 from ..algebra.krylov import cg
 from ..algebra.linalg import PCGResult, pcg
-from ..algebra.multigrid import SMOOTHERS, AlgebraicMultigrid, Multigrid
+from ..algebra.multigrid import SMOOTHERS, AlgebraicMultigrid, HierarchyCache
 from ..algebra.relax import FreeBoundaryRelaxation
 from ..algebra.system import LINEAR_PATHS
 from .base import IterationRecord, option_error
 from .linear import Trial
+from .split import MembraneSplit
 
 __all__ = ["MultigridSolve", "MultigridIterationRecord", "MULTIGRID_MODES"]
 
@@ -78,6 +84,8 @@ class MultigridIterationRecord(IterationRecord):
     time_mg_setup: float = 0.0    # Galerkin products and coarsest factorization of this step
     relaxed: int = 0              # rows whose class the free-boundary relaxation changed (0: not relaxed)
     time_relax: float = 0.0       # free-boundary relaxation of this step's iterate
+    split: int = 0                # 1: solved through the s/w splitting of two membranes (.split; linear_size:
+                                  # the w-system's)
 
 
 @dataclass(frozen=True)
@@ -99,6 +107,7 @@ class MultigridSolve:
     amg_min_size: int = 20000
     maxiter: int = 100
     update_fraction: float = 0.05
+    split: bool = True            # two membranes with K = blockdiag(S, alpha S): steps through s/w (.split)
     early_exit: bool = True       # exact mode, Newton-min rows: stop CG when the iterate's active set changes
     early_reduction: float = 1e-3
     early_every: int = 2
@@ -117,8 +126,9 @@ class MultigridSolve:
                 raise option_error(name, v, "a number in (0, 1)")
         if self.smoother not in SMOOTHERS:
             raise option_error("smoother", self.smoother, f"one of {SMOOTHERS}")
-        if not isinstance(self.early_exit, bool):
-            raise option_error("early_exit", self.early_exit, "True or False")
+        for name in ("early_exit", "split"):
+            if not isinstance(getattr(self, name), bool):
+                raise option_error(name, getattr(self, name), "True or False")
         for name, lo in (("degree", 1), ("maxiter", 1), ("amg_min_size", 1), ("early_every", 1), ("early_steps", 1),
                          ("relax_sweeps", 0), ("relax_steps", 0)):
             v = getattr(self, name)
@@ -135,36 +145,12 @@ class MultigridSolve:
 class _MultigridSession:
     def __init__(self, opt: MultigridSolve, system):
         self.opt, self.system = opt, system
-        self.mg: Optional[Multigrid] = None
-        self._rows = None  # row classes the hierarchy was built for
+        self.hierarchy = HierarchyCache(opt.prolongations, opt, system.solver)
         self.cg_cum = 0
         self._relaxation = None
+        self.split = MembraneSplit.build(system, opt) if opt.split else None
 
     can_refresh = False
-
-    def _hierarchy(self, lin) -> Tuple[Multigrid, int]:
-        """The V-cycle for this step and how it was obtained (0 reused, 1 built, 2 finest level updated)."""
-        rows = (lin.eq, lin.mixed, lin.w)
-        if self.mg is not None:
-            changed = sum(int(np.count_nonzero(a != b)) for a, b in zip(rows, self._rows))
-            if changed == 0:
-                if isinstance(self.mg, Multigrid):  # the same row classes: the same reduced matrix, not formed again
-                    lin.share_matrix(self.mg.levels[0].A)
-                return self.mg, 0
-            if changed <= self.opt.update_fraction * lin.size:
-                self.mg.levels[0].A = None  # the old finest matrix goes before the new one is formed
-                self.mg = self.mg.updated(lin.A, lin.keep)
-                self._rows = tuple(np.array(a, copy=True) for a in rows)
-                return self.mg, 2
-        self.mg = None  # free the old hierarchy first
-        opt = self.opt
-        if opt.prolongations:
-            self.mg = Multigrid(lin.A, opt.prolongations, lin.keep, degree=opt.degree, ratio=opt.ratio,
-                                solver=self.system.solver, smoother=opt.smoother)
-        else:
-            self.mg = AlgebraicMultigrid(lin.A)
-        self._rows = tuple(np.array(a, copy=True) for a in rows)
-        return self.mg, 1
 
     def step(self, k, x, y, c, Ca, Cb, res_prev) -> Trial:
         opt, system = self.opt, self.system
@@ -172,9 +158,16 @@ class _MultigridSession:
         lin = system.linearize(x, y, c, Ca, Cb)
         floor = opt.accuracy * opt.tol * system.scale()  # a tenth of the Newton test's ||Phi||
         fields = dict(linear_size=lin.size, mg_levels=0, mg_rebuilt=0, time_mg_setup=0.0, pcg_its=0)
+        early = opt.early_exit and k <= opt.early_steps and not lin.mixed.any()
+        if self.split is not None:
+            out = self.split.step(k, x, lin, floor, self._early_exit if early else None)
+            if out is not None:
+                xn, yn, split_fields = out
+                fields.update(split_fields, linear_path=LINEAR_PATHS.index("multigrid"))
+                return self._trial(k, xn, yn, lin, fields, t0)
         z = None
         if opt.prolongations or lin.size >= opt.amg_min_size:
-            mg, how = self._hierarchy(lin)
+            mg, how = self.hierarchy.get(lin)
             fields.update(mg_levels=len(mg.levels), mg_rebuilt=how, time_mg_setup=mg.time_setup if how else 0.0,
                           amg=int(isinstance(mg, AlgebraicMultigrid)))
             z0 = lin.restrict(x)
@@ -184,8 +177,8 @@ class _MultigridSession:
                 target = max(floor, min(res_prev, opt.forcing_max) * r0)
             bnorm = float(np.linalg.norm(lin.b)) or 1.0
             stopped_early = False
-            if opt.mode == "exact" and opt.early_exit and k <= opt.early_steps and not lin.mixed.any():
-                res, stopped_early = self._early_exit(lin, mg, z0, target, bnorm)
+            if opt.mode == "exact" and early:
+                res, stopped_early = self._early_exit(lin.A, lin.b, z0, mg, target, lin.recover, lin.eq)
             else:
                 res = pcg(lin.A, lin.b, mg, z0, rtol=target / bnorm, maxiter=opt.maxiter)
             its = res.iterations
@@ -201,8 +194,13 @@ class _MultigridSession:
                 fields["linear_path"] = LINEAR_PATHS.index("pcg-failed")
         if z is None:
             z = system.direct_solve(lin.A, lin.b)
-        fields["cg_cum"] = self.cg_cum
         xn, yn = lin.recover(z)
+        return self._trial(k, xn, yn, lin, fields, t0)
+
+    def _trial(self, k, xn, yn, lin, fields, t0) -> Trial:
+        """The step's iterate, relaxed at the free boundary where that applies."""
+        opt = self.opt
+        fields["cg_cum"] = self.cg_cum
         t_lin = time.perf_counter() - t0
         relaxed = False
         if opt.relax_sweeps and k <= opt.relax_steps and not lin.mixed.any():
@@ -228,26 +226,27 @@ class _MultigridSession:
         # Newton iterate (an exact solve of its linearization when CG ran to the target) stays the iterate
         return (xr, yr, True) if changed else (x, y, False)
 
-    def _early_exit(self, lin, mg, z0, target: float, bnorm: float):
-        """CG that stops as soon as its iterate's active set differs from the one this step solves for, once
-        the residual has dropped by ``early_reduction``: the next Newton-min step solves a different system
-        anyway (a Newton step that keeps the active set is solved to the full target).  Returns a
-        :class:`~ngcontact.algebra.linalg.PCGResult` and whether CG stopped early (else the usual tests
-        apply to its iterate)."""
+    def _early_exit(self, A, b, z0, mg, target: float, to_full, eq):
+        """CG on A z = b from z0 that stops as soon as its iterate's active set differs from ``eq``, the one this
+        step solves for, once the residual has dropped by ``early_reduction``: the next Newton-min step solves a
+        different system anyway (a Newton step that keeps the active set is solved to the full target).
+        ``to_full(z)``: the Newton iterate (x, y) of z.  Returns a :class:`~ngcontact.algebra.linalg.PCGResult`
+        and whether CG stopped early (else the usual tests apply to its iterate)."""
         opt, system = self.opt, self.system
-        r0 = float(np.linalg.norm(lin.b - lin.A @ z0))
+        bnorm = float(np.linalg.norm(b)) or 1.0
+        r0 = float(np.linalg.norm(b - A @ z0))
         stop = {}
 
         def monitor(st):
             if st.i == 0 or st.res * bnorm > opt.early_reduction * r0:
                 return False
-            xi, yi = lin.recover(st.x)
-            if np.array_equal(np.less_equal(*system.pair(xi, yi)), lin.eq):
+            xi, yi = to_full(st.x)
+            if np.array_equal(np.less_equal(*system.pair(xi, yi)), eq):
                 return False
             stop["i"] = st.i
             return True
 
-        kr = cg(lin.A, lin.b, z0, _Callable(mg), rtol=target / bnorm, maxiter=opt.maxiter, nu=opt.early_every,
+        kr = cg(A, b, z0, _Callable(mg), rtol=target / bnorm, maxiter=opt.maxiter, nu=opt.early_every,
                 monitor=monitor)
         if not stop:
             return PCGResult(kr.x, kr.iterations, kr.converged, kr.res), False

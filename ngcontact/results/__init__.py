@@ -119,7 +119,8 @@ n_active, n_changed, step, time_linear, time_step, linear_size, linear_path (0 f
 factorization, 1 PCG preconditioned by an earlier step's factorization, 2 PCG gave up and
 the step was factorized, 3 PCG + truncated multigrid), pcg_its (see :class:`ngcontact.newton.IterationRecord`);
 with --newton multigrid|multigrid-inexact also cg_cum, mg_levels, amg, cg_early, mg_rebuilt, time_mg_setup,
-relaxed (rows the free-boundary relaxation reclassified; 0: the iterate is the step's), time_relax
+relaxed (rows the free-boundary relaxation reclassified; 0: the iterate is the step's), time_relax,
+split (1: the two-membrane step was solved through the s/w splitting; then linear_size is the w-system's)
 (:class:`ngcontact.newton.MultigridIterationRecord`); with the GMRES modes also
 gmres_its, gmres_cum, gmres_accepted, gmres_stop (0 tolerance, 1 adaptive, 2 maxiter,
 3 stagnation), res_alg (||R^{k,i}||/||B^{k-1}||),

@@ -1,0 +1,195 @@
+r"""Newton steps of two membranes solved through the s/w splitting (the multigrid strategy's fast path).
+
+With K = blockdiag(S, alpha S) and the gap g = x_1 - x_2 row by row
+(:meth:`~ngcontact.algebra.system.ComplementaritySystem.membrane_split`), the change of variables
+s = x_1 + alpha x_2, w = x_1 - x_2 block-diagonalizes the x-equation of every linearized step:
+
+    S s' = F_1 + F_2,                      S w' - a D y' = F_w = F_1 - F_2 / alpha,   a = 1 + 1/alpha,
+
+and the constraint rows of the step act on w' and y' only (eq rows: w'_l = g_target_l; fixed rows:
+y'_l = y_fixed_l; mixed rows: y'_l = c0_l - w_l w'_l).  So the coupled step -- the reduced SPD system
+Z^T Kaug Z z = b of :meth:`~ngcontact.algebra.system.ComplementaritySystem.linearize`, twice the size, whose
+matrix is a sparse triple product -- is solved as
+
+* s': one Poisson solve per Newton run (it does not depend on the step), CG + multigrid on S;
+* w': an obstacle-type system, (S + a D W_mixed)[free, free], by CG + truncated multigrid on the nested
+  hierarchy of one field (the coarse levels reused while few rows change, as for the coupled system),
+
+and the coupled iterate is read off: x_1 = (s' + alpha w') / (1 + alpha), x_2 = (s' - w') / (1 + alpha), its
+kept unknowns mapped through the coupled step's :meth:`~ngcontact.algebra.system.LinearizedStep.recover`
+(which sets the slaves and y' as the coupled step does).  The step is the coupled Newton step: the Newton
+loop, its residuals, certificates and relaxation see the coupled system.  It is accepted on the coupled
+step's own tests -- ||F - K x' + B^T D y'|| (the reduced residual ||b - A z||; zero at the slave rows) below
+the target and the Jacobi-scaled residual in units of u -- otherwise CG continues with 1e-3 times the targets,
+at most three times, and then the step is solved on the coupled system.  The splitting is used where the
+tensions are within ``SPLIT_ALPHA`` of each other (x_2 = (s' - w') / (1 + alpha) loses the digits of
+alpha otherwise), in the exact mode.
+"""
+from __future__ import annotations
+
+import time
+from typing import Optional, Tuple
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..algebra.linalg import pcg
+from ..algebra.multigrid import HierarchyCache, Multigrid
+from ..algebra.sparse import submatrix
+
+__all__ = ["MembraneSplit", "SPLIT_ALPHA"]
+
+#: the splitting is used for 1 / SPLIT_ALPHA <= alpha = mu_2 / mu_1 <= SPLIT_ALPHA
+SPLIT_ALPHA = 1e3
+
+
+def single_field(prolongations) -> Optional[tuple]:
+    """The prolongations of one field from those of two stacked fields (blockdiag(P, P)), or None."""
+    out = []
+    for P2 in prolongations:
+        rf, rc = P2.shape
+        if rf % 2 or rc % 2:
+            return None
+        P = P2[: rf // 2, : rc // 2].tocsr()
+        if 2 * P.nnz != P2.nnz:
+            return None
+        out.append(P)
+    return tuple(out)
+
+
+class _WStep:
+    """The w-system of one coupled step, with the interface :class:`~ngcontact.algebra.multigrid.HierarchyCache`
+    reads (row classes, kept unknowns, the reduced matrix formed on first use)."""
+
+    def __init__(self, Kw: sp.csr_matrix, keep: np.ndarray, b: np.ndarray, lin):
+        self.Kw, self.keep, self.b = Kw, keep, b
+        self.eq, self.mixed, self.w = lin.eq, lin.mixed, lin.w
+        self._A = None
+
+    @property
+    def A(self) -> sp.csr_matrix:
+        if self._A is None:
+            self._A = submatrix(self.Kw, self.keep, self.keep)
+        return self._A
+
+    def share_matrix(self, A: sp.csr_matrix) -> None:
+        self._A = A
+
+    @property
+    def size(self) -> int:
+        return int(self.keep.sum())
+
+
+class MembraneSplit:
+    """The s/w splitting of one Newton run's two-membrane system (module docstring); :meth:`build` returns None
+    where it does not apply."""
+
+    def __init__(self, system, S: sp.csr_matrix, alpha: float, prolongations: tuple, opt):
+        self.system, self.S, self.alpha, self.opt = system, S, float(alpha), opt
+        self.prolongations = prolongations
+        m = system.m
+        self.Fw = system.F[:m] - system.F[m:] / alpha
+        self.a = 1.0 + 1.0 / alpha
+        self.dS = S.diagonal()
+        self.hierarchy = HierarchyCache(prolongations, opt, system.solver)
+        self.s = None  # s' (the same for every step), solved at the first step
+        self.time_s = 0.0
+
+    @classmethod
+    def build(cls, system, opt) -> Optional["MembraneSplit"]:
+        if opt.mode != "exact" or not opt.prolongations or not hasattr(system, "membrane_split"):
+            return None
+        split = system.membrane_split()
+        if split is None:
+            return None
+        S, alpha = split
+        if not (1.0 / SPLIT_ALPHA <= alpha <= SPLIT_ALPHA):
+            return None
+        Ps = single_field(opt.prolongations)
+        if Ps is None or Ps[-1].shape[0] != system.m:
+            return None
+        return cls(system, S, alpha, Ps, opt)
+
+    def _solve_s(self, x: np.ndarray, target: float) -> int:
+        """s' = S^-1 (F_1 + F_2) from s of the iterate x, to ||S s' - F_1 - F_2|| <= ``target``: CG iterations."""
+        t0 = time.perf_counter()
+        m, sys_ = self.system.m, self.system
+        rhs = sys_.F[:m] + sys_.F[m:]
+        s0 = x[:m] + self.alpha * x[m:] if self.s is None else self.s
+        bnorm = float(np.linalg.norm(rhs)) or 1.0
+        if self._mg_s is None:
+            self._mg_s = Multigrid(self.S, self.prolongations, None, degree=self.opt.degree, ratio=self.opt.ratio,
+                                   solver=sys_.solver, smoother=self.opt.smoother)
+        res = pcg(self.S, rhs, self._mg_s, s0, rtol=target / bnorm, maxiter=self.opt.maxiter)
+        self.time_s += time.perf_counter() - t0
+        if not res.converged:
+            return -1
+        self.s = res.x
+        return res.iterations
+
+    _mg_s = None
+
+    def _coupled(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin) -> Tuple[np.ndarray, np.ndarray]:
+        """The coupled iterate (x', y') of w' (kept rows ``w_free``, eq rows ``w_eq``) and s'."""
+        w = w_eq.copy()
+        w[ws.keep] = w_free
+        x = np.concatenate([(self.s + self.alpha * w) / (1.0 + self.alpha), (self.s - w) / (1.0 + self.alpha)])
+        return lin.recover(lin.restrict(x))
+
+    def step(self, k: int, x: np.ndarray, lin, target: float, early) -> Optional[tuple]:
+        """(x', y', fields) of the coupled step ``lin`` at the iterate x, or None (the step is to be solved on the
+        coupled system).  ``early(A, b, z0, mg, target, to_full, eq)``: the session's early-exit CG (or None)."""
+        opt, system, m = self.opt, self.system, self.system.m
+        s_its = 0
+        if self.s is None:
+            s_its = self._solve_s(x, 0.25 * target)
+            if s_its < 0:
+                return None
+        eq, mixed = lin.eq, lin.mixed
+        # the step's rows on w: eq rows fix w' at the target gap (the coupled slave is x_2 = x_1 - g_target)
+        w_eq = np.zeros(m)
+        w_eq[lin.eq_rows] = -lin.x_aff[lin.slaves]
+        aD = self.a * system.D
+        Kw = self.S if not mixed.any() else (self.S + sp.diags(np.where(mixed, aD * lin.w, 0.0))).tocsr()
+        rhs = self.Fw + aD * (lin.y_fixed + np.where(mixed, lin.c0, 0.0)) - Kw @ w_eq
+        ws = _WStep(Kw, ~eq, rhs[~eq], lin)
+        mg, how = self.hierarchy.get(ws)
+        z0 = (x[:m] - x[m:])[ws.keep]
+        bnorm = float(np.linalg.norm(ws.b)) or 1.0
+        t_w = 0.5 * target
+        fields = dict(linear_size=ws.size, mg_levels=len(mg.levels), mg_rebuilt=how,
+                      time_mg_setup=mg.time_setup if how else 0.0, split=1, cg_early=0)
+
+        def to_full(z):
+            return self._coupled(z, ws, w_eq, lin)
+
+        its = s_its
+        if early is not None:
+            res, stopped = early(ws.A, ws.b, z0, mg, t_w, to_full, eq)
+            its += res.iterations
+            if stopped:
+                xn, yn = to_full(res.x)
+                return xn, yn, dict(fields, pcg_its=its, cg_early=1)
+        else:
+            res = pcg(ws.A, ws.b, mg, z0, rtol=t_w / bnorm, maxiter=opt.maxiter)
+            its += res.iterations
+        # diag of the coupled reduced matrix at the kept unknowns (a merged pair: both diagonals; mixed rows: + D w)
+        dmix = np.where(mixed, system.D * lin.w, 0.0)
+        dA = np.concatenate([self.dS * np.where(eq, 1.0 + self.alpha, 1.0) + dmix, self.alpha * self.dS + dmix])
+        for _ in range(4):
+            if not res.converged:
+                return None
+            xn, yn = to_full(res.x)
+            r = system.residual(xn, yn)
+            u_scale = float(np.max(np.abs(xn), initial=0.0))
+            if float(np.linalg.norm(r)) <= target \
+                    and float(np.max(np.abs(r / dA), initial=0.0)) <= opt.accuracy * opt.tol * u_scale:
+                return xn, yn, dict(fields, pcg_its=its)
+            # CG continues on both parts with 1e-3 times the targets
+            target, t_w = 1e-3 * target, 1e-3 * t_w
+            s_its = self._solve_s(x, 0.25 * target)
+            if s_its < 0:
+                return None
+            res = pcg(ws.A, ws.b, mg, res.x, rtol=t_w / bnorm, maxiter=opt.maxiter)
+            its += s_its + res.iterations
+        return None
