@@ -233,6 +233,21 @@ class ComplementaritySystem:
                 or not np.array_equal(self.lo, m + np.arange(m)):
             return None
         K = self.K.tocsr()
+        nnz1 = int(K.indptr[m])
+        if m > 0 and K.nnz == 2 * nnz1 and np.array_equal(K.indptr[m:] - nnz1, K.indptr[:m + 1]) \
+                and np.array_equal(K.indices[nnz1:] - m, K.indices[:nnz1]) \
+                and (nnz1 == 0 or int(K.indices[:nnz1].max()) < m):
+            # the two diagonal blocks share their pattern (as the FEM assembles them) and nothing couples them:
+            # compare the values array to array, S a view of the leading block (no sparse slicing or difference)
+            S = sp.csr_matrix((K.data[:nnz1], K.indices[:nnz1], K.indptr[:m + 1]), shape=(m, m), copy=False)
+            d1 = S.diagonal()
+            if np.any(d1 <= 0):
+                return None
+            alpha = float(K[m, m] / d1[0])
+            d = K.data
+            if not alpha > 0 or float(np.max(np.abs(d[nnz1:] - alpha * d[:nnz1]))) > rtol * float(np.max(np.abs(d[:nnz1]))):
+                return None
+            return S, alpha
         S, K22 = K[:m, :m], K[m:, m:]
         if K[:m, m:].count_nonzero() or K[m:, :m].count_nonzero():
             return None

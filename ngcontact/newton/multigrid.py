@@ -178,7 +178,8 @@ class _MultigridSession:
             bnorm = float(np.linalg.norm(lin.b)) or 1.0
             stopped_early = False
             if opt.mode == "exact" and early:
-                res, stopped_early = self._early_exit(lin.A, lin.b, z0, mg, target, lin.recover, lin.eq)
+                res, stopped_early = self._early_exit(lin.A, lin.b, z0, mg, target,
+                                                      lambda z: np.less_equal(*system.pair(*lin.recover(z))), lin.eq)
             else:
                 res = pcg(lin.A, lin.b, mg, z0, rtol=target / bnorm, maxiter=opt.maxiter)
             its = res.iterations
@@ -226,13 +227,14 @@ class _MultigridSession:
         # Newton iterate (an exact solve of its linearization when CG ran to the target) stays the iterate
         return (xr, yr, True) if changed else (x, y, False)
 
-    def _early_exit(self, A, b, z0, mg, target: float, to_full, eq):
+    def _early_exit(self, A, b, z0, mg, target: float, active, eq):
         """CG on A z = b from z0 that stops as soon as its iterate's active set differs from ``eq``, the one this
         step solves for, once the residual has dropped by ``early_reduction``: the next Newton-min step solves a
         different system anyway (a Newton step that keeps the active set is solved to the full target).
-        ``to_full(z)``: the Newton iterate (x, y) of z.  Returns a :class:`~ngcontact.algebra.linalg.PCGResult`
-        and whether CG stopped early (else the usual tests apply to its iterate)."""
-        opt, system = self.opt, self.system
+        ``active(z)``: the active set {weight g <= y} of the Newton iterate of z.  Returns a
+        :class:`~ngcontact.algebra.linalg.PCGResult` and whether CG stopped early (else the usual tests apply to
+        its iterate)."""
+        opt = self.opt
         bnorm = float(np.linalg.norm(b)) or 1.0
         r0 = float(np.linalg.norm(b - A @ z0))
         stop = {}
@@ -240,8 +242,7 @@ class _MultigridSession:
         def monitor(st):
             if st.i == 0 or st.res * bnorm > opt.early_reduction * r0:
                 return False
-            xi, yi = to_full(st.x)
-            if np.array_equal(np.less_equal(*system.pair(xi, yi)), eq):
+            if np.array_equal(active(st.x), eq):
                 return False
             stop["i"] = st.i
             return True

@@ -117,6 +117,10 @@ class MembraneSplit:
         rhs = sys_.F[:m] + sys_.F[m:]
         s0 = x[:m] + self.alpha * x[m:] if self.s is None else self.s
         bnorm = float(np.linalg.norm(rhs)) or 1.0
+        if float(np.linalg.norm(rhs - self.S @ s0)) <= target:  # s of the iterate is s' already (no hierarchy)
+            self.s = s0
+            self.time_s += time.perf_counter() - t0
+            return 0
         if self._mg_s is None:
             self._mg_s = Multigrid(self.S, self.prolongations, None, degree=self.opt.degree, ratio=self.opt.ratio,
                                    solver=sys_.solver, smoother=self.opt.smoother)
@@ -136,9 +140,22 @@ class MembraneSplit:
         x = np.concatenate([(self.s + self.alpha * w) / (1.0 + self.alpha), (self.s - w) / (1.0 + self.alpha)])
         return lin.recover(lin.restrict(x))
 
+    def _active(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin, S_eq: sp.csr_matrix) -> np.ndarray:
+        """The Newton-min active set {weight g <= y} of the coupled iterate of w' (no mixed rows): g = w', y' = y_fixed
+        on the fixed rows and, on the eq rows, the multiplier of the slave's equation (x_2 row of the step) as
+        :meth:`~ngcontact.algebra.system.LinearizedStep.recover` reads it -- without forming the coupled iterate."""
+        system, m = self.system, self.system.m
+        w = w_eq.copy()
+        w[ws.keep] = w_free
+        y = lin.y_fixed.copy()
+        rows = lin.eq_rows
+        x2 = (self.s - w) / (1.0 + self.alpha)
+        y[rows] = (S_eq @ x2 - system.F[m:][rows]) / (-system.D[rows])
+        return system.constraint_weight * w <= y
+
     def step(self, k: int, x: np.ndarray, lin, target: float, early) -> Optional[tuple]:
         """(x', y', fields) of the coupled step ``lin`` at the iterate x, or None (the step is to be solved on the
-        coupled system).  ``early(A, b, z0, mg, target, to_full, eq)``: the session's early-exit CG (or None)."""
+        coupled system).  ``early(A, b, z0, mg, target, active, eq)``: the session's early-exit CG (or None)."""
         opt, system, m = self.opt, self.system, self.system.m
         s_its = 0
         if self.s is None:
@@ -165,7 +182,8 @@ class MembraneSplit:
 
         its = s_its
         if early is not None:
-            res, stopped = early(ws.A, ws.b, z0, mg, t_w, to_full, eq)
+            S_eq = self.alpha * self.S[lin.eq_rows]  # the slaves' rows of K (x_2 block)
+            res, stopped = early(ws.A, ws.b, z0, mg, t_w, lambda z: self._active(z, ws, w_eq, lin, S_eq), eq)
             its += res.iterations
             if stopped:
                 xn, yn = to_full(res.x)
