@@ -35,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .linalg import SPDSolver
+from .sparse import submatrix
 
 __all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "HierarchyCache", "SMOOTHERS", "p1_prolongation",
            "field_prolongation"]
@@ -65,9 +66,18 @@ def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_inter
     return P
 
 
-def _used_columns(P: sp.csr_matrix) -> np.ndarray:
-    """Columns of P with a nonzero entry (coarse unknowns whose truncated function survives)."""
-    return np.flatnonzero(np.bincount(P.indices[P.data != 0], minlength=P.shape[1]))
+def _truncated(P: sp.csr_matrix, rows) -> "tuple[sp.csr_matrix, np.ndarray]":
+    """(P[rows][:, used], used): the rows ``rows`` (boolean mask or increasing indices) of P and its columns with a
+    nonzero entry in them (the coarse unknowns whose truncated function survives), in one pass each
+    (:func:`~ngcontact.algebra.sparse.submatrix`; scipy's column index takes two)."""
+    sel = np.asarray(rows)
+    if sel.dtype != bool:
+        mask = np.zeros(P.shape[0], dtype=bool)
+        mask[sel] = True
+        sel = mask
+    entries = np.repeat(sel, np.diff(P.indptr)) & (P.data != 0)
+    used = np.flatnonzero(np.bincount(P.indices[entries], minlength=P.shape[1]))
+    return submatrix(P, sel, used), used
 
 
 def _level(A: sp.csr_matrix, P: sp.csr_matrix, chebyshev: bool) -> MultigridLevel:
@@ -122,18 +132,15 @@ class Multigrid:
         A = A.tocsr()
         Ps = list(prolongations)
         levels: List[MultigridLevel] = []
-        P = Ps[-1] if Ps else None
-        if P is not None and keep is not None:
-            P = P[keep]
         self._finest = (Ps[-1] if Ps else None, None)
+        rows = keep if keep is not None else (np.ones(Ps[-1].shape[0], dtype=bool) if Ps else None)
         for j in range(len(Ps) - 1, -1, -1):
-            used = _used_columns(P)
+            P, used = _truncated(Ps[j], rows)
             if j == len(Ps) - 1:
                 self._finest = (Ps[-1], used)
-            P = P[:, used].tocsr()
             levels.append(_level(A, P, smoother == "chebyshev"))
             A = _transpose_csr(P) @ (A @ P)  # CSR products only (a CSC factor would convert A P)
-            P = Ps[j - 1][used] if j > 0 else None
+            rows = used
         levels.append(MultigridLevel(A, None))
         self.levels = levels  # fine first
         self.coarse = _DenseCholesky(A) if A.shape[0] <= DENSE_COARSE else SPDSolver(A, solver)
@@ -148,7 +155,7 @@ class Multigrid:
         if P_full is None:
             return Multigrid(A, (), degree=self.degree, ratio=self.ratio, solver=self.solver, smoother=self.smoother)
         out = copy.copy(self)
-        P = (P_full[keep] if keep is not None else P_full)[:, used].tocsr()
+        P = submatrix(P_full, keep if keep is not None else np.ones(P_full.shape[0], dtype=bool), used)
         out.levels = [_level(A.tocsr(), P, self.smoother == "chebyshev")] + self.levels[1:]
         out.time_setup = time.perf_counter() - t0
         return out

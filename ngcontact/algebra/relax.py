@@ -62,7 +62,7 @@ class FreeBoundaryRelaxation:
         """The rows of the free boundary of ``active``: active rows next to an inactive one and inactive rows
         next to an active one."""
         G = self.G
-        nb_active = G @ active.astype(float)
+        nb_active = G @ active.astype(np.float32)  # neighbour counts, exact in single precision
         return np.flatnonzero((active & (nb_active < np.diff(G.indptr))) | (~active & (nb_active > 0)))
 
     def band(self, edge: np.ndarray, layers: int) -> np.ndarray:
@@ -140,12 +140,13 @@ class FreeBoundaryRelaxation:
 
 
 def _row_graph(K: sp.csr_matrix, up: np.ndarray) -> sp.csr_matrix:
-    """The pattern of K[up][:, up] (ones): rows l, l' are neighbours when their first unknowns are coupled in K.
+    """The pattern of K[up][:, up] (single-precision ones: the products count neighbours): rows l, l' are
+    neighbours when their first unknowns are coupled in K.
     Where the rows' first unknowns are 0..m-1 and K has no entry from them to the others (two membranes,
     membrane 1 first; an obstacle on every unknown) it is K's leading block, read without a copy of the values."""
     m = len(up)
     end = K.indptr[m] if m <= K.shape[0] else 0
     if np.array_equal(up, np.arange(m)) and (end == 0 or K.indices[:end].max() < m):
-        return sp.csr_matrix((np.ones(end), K.indices[:end], K.indptr[:m + 1]), shape=(m, m))
+        return sp.csr_matrix((np.ones(end, dtype=np.float32), K.indices[:end], K.indptr[:m + 1]), shape=(m, m))
     G = submatrix(K, up, up)
-    return sp.csr_matrix((np.ones(G.nnz), G.indices, G.indptr), shape=G.shape)
+    return sp.csr_matrix((np.ones(G.nnz, dtype=np.float32), G.indices, G.indptr), shape=G.shape)
