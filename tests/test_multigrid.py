@@ -248,6 +248,9 @@ def test_two_membrane_steps_through_the_split_match_the_coupled_solves(scene, cf
     steps = [it for it in split.iterations if it["level"] > 0 and it["k"] > 0]
     assert steps and sum(it["split"] for it in steps) >= len(steps) // 2
     assert cfun != "min" or all(it["split"] == 1 for it in steps)
+    for lev in range(levels):  # every CG iteration counted once in its step (a handed-back split attempt too)
+        its = [it for it in split.iterations if it["level"] == lev]
+        assert its[-1]["cg_cum"] == sum(it["pcg_its"] for it in its)
     assert not any(it["split"] for it in coupled.iterations)
     for a, b in zip(coupled.rows, split.rows):
         assert a["newton_its"] == b["newton_its"] and a["active_nodes"] == b["active_nodes"]

@@ -159,12 +159,15 @@ class _MultigridSession:
         floor = opt.accuracy * opt.tol * system.scale()  # a tenth of the Newton test's ||Phi||
         fields = dict(linear_size=lin.size, mg_levels=0, mg_rebuilt=0, time_mg_setup=0.0, pcg_its=0)
         early = opt.early_exit and k <= opt.early_steps and not lin.mixed.any()
+        spent = 0  # CG iterations of a split attempt that handed the step back
         if self.split is not None:
             out = self.split.step(k, x, lin, floor, self._early_exit if early else None)
+            self.cg_cum += self.split.its
             if out is not None:
                 xn, yn, split_fields = out
                 fields.update(split_fields, linear_path=LINEAR_PATHS.index("multigrid"))
                 return self._trial(k, xn, yn, lin, fields, t0)
+            spent = self.split.its
         z = None
         if opt.prolongations or lin.size >= opt.amg_min_size:
             mg, how = self.hierarchy.get(lin)
@@ -186,7 +189,7 @@ class _MultigridSession:
             fields["cg_early"] = int(stopped_early)
             if opt.mode == "exact" and not stopped_early:
                 res, its = self._units_check(lin, mg, res, its, target, bnorm)
-            fields["pcg_its"] = its
+            fields["pcg_its"] = its + spent
             self.cg_cum += its
             if res.converged:
                 z = res.x

@@ -110,8 +110,9 @@ class MembraneSplit:
             return None
         return cls(system, S, alpha, Ps, opt)
 
-    def _solve_s(self, x: np.ndarray, target: float) -> int:
-        """s' = S^-1 (F_1 + F_2) from s of the iterate x, to ||S s' - F_1 - F_2|| <= ``target``: CG iterations."""
+    def _solve_s(self, x: np.ndarray, target: float) -> bool:
+        """s' = S^-1 (F_1 + F_2) from s of the iterate x, to ||S s' - F_1 - F_2|| <= ``target``: whether CG got
+        there (its iterations are added to :attr:`its`)."""
         t0 = time.perf_counter()
         m, sys_ = self.system.m, self.system
         rhs = sys_.F[:m] + sys_.F[m:]
@@ -120,18 +121,20 @@ class MembraneSplit:
         if float(np.linalg.norm(rhs - self.S @ s0)) <= target:  # s of the iterate is s' already (no hierarchy)
             self.s = s0
             self.time_s += time.perf_counter() - t0
-            return 0
+            return True
         if self._mg_s is None:
             self._mg_s = Multigrid(self.S, self.prolongations, None, degree=self.opt.degree, ratio=self.opt.ratio,
                                    solver=sys_.solver, smoother=self.opt.smoother)
         res = pcg(self.S, rhs, self._mg_s, s0, rtol=target / bnorm, maxiter=self.opt.maxiter)
         self.time_s += time.perf_counter() - t0
+        self.its += res.iterations
         if not res.converged:
-            return -1
+            return False
         self.s = res.x
-        return res.iterations
+        return True
 
     _mg_s = None
+    its = 0  # CG iterations of the last :meth:`step` (s and w), also when it returned None
 
     def _coupled(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin) -> Tuple[np.ndarray, np.ndarray]:
         """The coupled iterate (x', y') of w' (kept rows ``w_free``, eq rows ``w_eq``) and s'."""
@@ -155,13 +158,11 @@ class MembraneSplit:
 
     def step(self, k: int, x: np.ndarray, lin, target: float, early) -> Optional[tuple]:
         """(x', y', fields) of the coupled step ``lin`` at the iterate x, or None (the step is to be solved on the
-        coupled system).  ``early(A, b, z0, mg, target, active, eq)``: the session's early-exit CG (or None)."""
+        coupled system; :attr:`its` counts the CG iterations spent either way).  ``early(A, b, z0, mg, target, active, eq)``: the session's early-exit CG (or None)."""
         opt, system, m = self.opt, self.system, self.system.m
-        s_its = 0
-        if self.s is None:
-            s_its = self._solve_s(x, 0.25 * target)
-            if s_its < 0:
-                return None
+        self.its = 0
+        if self.s is None and not self._solve_s(x, 0.25 * target):
+            return None
         eq, mixed = lin.eq, lin.mixed
         # the step's rows on w: eq rows fix w' at the target gap (the coupled slave is x_2 = x_1 - g_target)
         w_eq = np.zeros(m)
@@ -180,17 +181,16 @@ class MembraneSplit:
         def to_full(z):
             return self._coupled(z, ws, w_eq, lin)
 
-        its = s_its
         if early is not None:
             S_eq = self.alpha * self.S[lin.eq_rows]  # the slaves' rows of K (x_2 block)
             res, stopped = early(ws.A, ws.b, z0, mg, t_w, lambda z: self._active(z, ws, w_eq, lin, S_eq), eq)
-            its += res.iterations
+            self.its += res.iterations
             if stopped:
                 xn, yn = to_full(res.x)
-                return xn, yn, dict(fields, pcg_its=its, cg_early=1)
+                return xn, yn, dict(fields, pcg_its=self.its, cg_early=1)
         else:
             res = pcg(ws.A, ws.b, mg, z0, rtol=t_w / bnorm, maxiter=opt.maxiter)
-            its += res.iterations
+            self.its += res.iterations
         # diag of the coupled reduced matrix at the kept unknowns (a merged pair: both diagonals; mixed rows: + D w)
         dmix = np.where(mixed, system.D * lin.w, 0.0)
         dA = np.concatenate([self.dS * np.where(eq, 1.0 + self.alpha, 1.0) + dmix, self.alpha * self.dS + dmix])
@@ -202,12 +202,11 @@ class MembraneSplit:
             u_scale = float(np.max(np.abs(xn), initial=0.0))
             if float(np.linalg.norm(r)) <= target \
                     and float(np.max(np.abs(r / dA), initial=0.0)) <= opt.accuracy * opt.tol * u_scale:
-                return xn, yn, dict(fields, pcg_its=its)
+                return xn, yn, dict(fields, pcg_its=self.its)
             # CG continues on both parts with 1e-3 times the targets
             target, t_w = 1e-3 * target, 1e-3 * t_w
-            s_its = self._solve_s(x, 0.25 * target)
-            if s_its < 0:
+            if not self._solve_s(x, 0.25 * target):
                 return None
             res = pcg(ws.A, ws.b, mg, res.x, rtol=t_w / bnorm, maxiter=opt.maxiter)
-            its += s_its + res.iterations
+            self.its += res.iterations
         return None
