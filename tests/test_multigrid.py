@@ -101,10 +101,14 @@ def _no_early_exit(opts):
 
 
 @pytest.mark.parametrize("scene,levels", [("ex9_obstacle", 4), ("test1", 4)])
-def test_multigrid_newton_matches_direct(scene, levels):
+def test_multigrid_newton_matches_direct(scene, levels, monkeypatch):
     """Without the early exit and the relaxation: the Newton counts, active sets and errors of the sparse
     Cholesky steps; with them (the default): the same converged solution, at most one Newton step more per
-    level, fewer CG iterations.  Levels >= 1 solved by CG + MG."""
+    level, fewer CG iterations.  Levels >= 1 solved by CG + MG.  (ex9 without the band solve of the nested
+    start, after which its steps keep their active sets and the early exit has nothing to do.)"""
+    from ngcontact.algebra.system import ComplementaritySystem
+
+    monkeypatch.setattr(ComplementaritySystem, "WARM_BAND", 0)
     sc = load_scene(scene)
     runs = {m: run_scene(sc, RunOptions(levels=levels, newton=m)) for m in ("direct", "multigrid")}
     runs["late"] = run_scene(sc, _no_early_exit(RunOptions(levels=levels, newton="multigrid")))

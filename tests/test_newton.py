@@ -189,6 +189,51 @@ def test_obstacle_warm_start_sweeps_keep_the_solution_and_help_the_first_step(mo
     assert cb <= ca and b.iterations <= a.iterations
 
 
+def test_band_solve_covering_everything_is_the_discrete_solution():
+    """FreeBoundaryRelaxation.solve_band with a band wider than the mesh solves the whole ex9 obstacle problem
+    (level 3) from the interpolated start: the converged Newton solution, and Newton from it stops at once."""
+    from ngcontact.algebra.relax import FreeBoundaryRelaxation
+    from ngcontact.discretizations.fem import FEMDiscretization
+    from ngcontact.scenes import load_scene
+
+    scene = load_scene("ex9_obstacle")
+    meshes = list(scene.problem.domain.meshes(4))
+    coarse = FEMDiscretization(scene.problem, meshes[2], order=1)
+    sc = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess), NewtonOptions())
+    fine = FEMDiscretization(scene.problem, meshes[3], order=1)
+    x0, y0 = fine.prolongate(coarse, sc.x, sc.y)
+    ref = semismooth_newton(fine.system, x0, y0, NewtonOptions())
+    R = FreeBoundaryRelaxation(fine.system)
+    lifted = x0 + 0.5 * np.median(y0[y0 > 0]) / fine.system.constraint_weight  # part of the contact set let go
+    for start in ((x0, y0), (lifted, y0)):
+        active = fine.system.constraint_weight * fine.system.gap(start[0]) <= start[1]
+        x, y, changed = R.solve_band(*start, layers=10 ** 6)
+        np.testing.assert_allclose(x, ref.x, rtol=0, atol=1e-10 * np.abs(ref.x).max())
+        np.testing.assert_allclose(y, ref.y, rtol=0, atol=1e-8 * np.abs(ref.y).max())
+        assert semismooth_newton(fine.system, x, y, NewtonOptions()).iterations == 0
+        assert changed == np.count_nonzero(active != (ref.y > 0))
+    assert changed > 0  # the lifted start: rows let go are taken back
+
+
+def test_nested_obstacle_start_band_solve_saves_the_second_newton_step(monkeypatch):
+    """The band solve of the nested start (ComplementaritySystem.WARM_BAND layers): ex9 on 6 nested levels takes
+    one Newton step per level (levels >= 1), where the start without it takes two on the finer levels; the same
+    converged solutions."""
+    from ngcontact.algebra.system import ComplementaritySystem
+    from ngcontact.drivers import RunOptions, run_scene
+    from ngcontact.scenes import load_scene
+
+    sc = load_scene("ex9_obstacle")
+    band = run_scene(sc, RunOptions(levels=6))
+    monkeypatch.setattr(ComplementaritySystem, "WARM_BAND", 0)
+    plain = run_scene(sc, RunOptions(levels=6))
+    assert all(r["newton_its"] <= 1 for r in band.rows[1:])
+    assert max(r["newton_its"] for r in plain.rows[1:]) == 2
+    for a, b in zip(plain.rows, band.rows):
+        assert b["certified"] == 1 and b["active_nodes"] == a["active_nodes"]
+        assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-10)
+
+
 @pytest.mark.parametrize("tension", [1e-6, 2.0 ** -20 * 3.0, 1e8])
 def test_obstacle_warm_start_is_invariant_under_a_tension_scale(tension):
     """The nested start's active set, and so every Newton iterate, must not depend on the units of the

@@ -56,7 +56,64 @@ class FreeBoundaryRelaxation:
         spd = bool(getattr(system, "factor_reuse", False)) and bool(len(up)) and bool(np.all(self.d > 0))
         coupled = spd and self.two.any() and np.any(np.asarray(K[up[self.two], lo[self.two]]).ravel() != 0)
         self.applicable = spd and not coupled
-        self.G = _row_graph(K, up) if self.applicable else sp.csr_matrix((len(up), len(up)))
+        if not self.applicable:
+            self.G = sp.csr_matrix((len(up), len(up)))
+        else:  # the graph depends on K and up only: kept with the system (its rescaled copies share K and up)
+            cached = system.__dict__.get("_row_graph")
+            if cached is None or cached[0] is not system.K or cached[1] is not up:
+                cached = (system.K, up, _row_graph(K, up))
+                system.__dict__["_row_graph"] = cached
+            self.G = cached[2]
+
+    def solve_band(self, x: np.ndarray, y: np.ndarray, layers: int, max_steps: int = 30):
+        """The obstacle problem on the band of ``layers`` layers around the free boundary of (x, y), the unknowns
+        outside the band frozen: (x', y', rows whose class changed), or None (not applicable: a row with a lower
+        unknown, K not SPD; no free boundary; the local active-set iteration did not settle).
+
+        The band's energy 1/2 x_U.K_UU x_U - c.x_U (c = F_U - K_{U,rest} x_rest) is minimized on x_U >= b by the
+        primal-dual active-set iteration (Newton-min on the band) with sparse Cholesky solves of the free rows,
+        from the active set of (x, y); the band rows' multipliers are read off the residual, y = (K x - F) / D
+        (the obstacle row's equation), zero on the inactive rows.  Rows outside the band keep x and y."""
+        s = self.system
+        if not self.applicable or self.two.any() or layers < 1:
+            return None
+        from .linalg import SPDSolver
+
+        w = s.constraint_weight
+        active = w * s.gap(x) <= y
+        edge = self.boundary(active)
+        if not len(edge):
+            return None
+        rows = self.band(edge, layers)
+        U = s.up[rows]
+        order = np.argsort(U)  # the band's unknowns increasing (submatrix), rows in the same order
+        rows, U = rows[order], U[order]
+        KU = self.K[U]  # the band's rows only: the submatrix below passes over them, not over K
+        x_rest = np.array(x, dtype=float)
+        x_rest[U] = 0.0
+        c = s.F[U] - KU @ x_rest
+        KUU = submatrix(KU, np.ones(len(U), dtype=bool), U)
+        b, D = s.b[rows], s.D[rows]
+        act = active[rows].copy()
+        xU = np.array(x, dtype=float)[U]
+        for _ in range(max_steps):
+            free = ~act
+            xU[act] = b[act]
+            rhs = c - KUU @ np.where(act, b, 0.0)
+            if free.any():
+                xU[free] = SPDSolver(submatrix(KUU, free, free), s.solver).solve(rhs[free])
+            lam = (KUU @ xU - c) / D
+            new = (act & (lam > 0)) | (free & (xU < b))  # Newton-min on min(w (x - b), y): the next active set
+            if np.array_equal(new, act):
+                break
+            act = new
+        else:
+            return None
+        x = np.array(x, dtype=float)
+        x[U] = xU
+        y = np.array(y, dtype=float)
+        y[rows] = np.where(act, np.maximum(lam, 0.0), 0.0)
+        return x, y, int(np.count_nonzero(act != active[rows]))
 
     def boundary(self, active: np.ndarray) -> np.ndarray:
         """The rows of the free boundary of ``active``: active rows next to an inactive one and inactive rows

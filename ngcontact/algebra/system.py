@@ -261,6 +261,9 @@ class ComplementaritySystem:
 
     #: projected Jacobi sweeps (damping) of :meth:`warm_start` for one-sided systems
     WARM_SWEEPS, WARM_OMEGA = 5, 2.0 / 3.0
+    #: layers of the band around the free boundary on which :meth:`warm_start` solves the obstacle problem
+    #: (0: none).  With 40 the nested ex9 levels take one Newton step each (results/bench/BENCH.md, newton_its)
+    WARM_BAND = 40
 
     def warm_start(self, x0: np.ndarray, y0: np.ndarray):
         """Nested-iteration start (x, y) from an interpolated coarser solution (x0, y0).
@@ -283,7 +286,12 @@ class ComplementaritySystem:
         When every row is one-sided, ``WARM_SWEEPS`` damped projected Jacobi sweeps
         x <- max(b, x + omega diag(K)^-1 (F - K x)) (on the constrained unknowns) first
         smooth the interpolation error next to the free boundary (one SpMV each), which
-        leaves fewer rows for the first Newton step to change.
+        leaves fewer rows for the first Newton step to change.  Then the obstacle problem is
+        solved on the band of ``WARM_BAND`` layers of rows around the free boundary of that start,
+        the rest frozen (:meth:`~ngcontact.algebra.relax.FreeBoundaryRelaxation.solve_band`: a
+        few sparse Cholesky solves of the band's free rows): the discrete free boundary moves by
+        about one layer per Newton-min step, the band solve moves it in one go, and the first
+        Newton step usually keeps its active set.
         """
         x = np.array(x0, dtype=float)
         y = np.array(y0, dtype=float)
@@ -314,6 +322,12 @@ class ComplementaritySystem:
         #   <=>  w g <= min(y0, w y_res / c)   (w y_res / c is in the units of y)
         w = self.constraint_weight
         y[one] = np.minimum(y[one], w * y_res / c)
+        if one.all() and self.WARM_BAND:
+            from .relax import FreeBoundaryRelaxation  # (relax reads the system; no import at module level)
+
+            band = FreeBoundaryRelaxation(self).solve_band(x, y, self.WARM_BAND)
+            if band is not None:
+                x, y = band[0], band[1]
         return x, y
 
     def direct_solve(self, A: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
