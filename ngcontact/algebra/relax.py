@@ -65,10 +65,11 @@ class FreeBoundaryRelaxation:
                 system.__dict__["_row_graph"] = cached
             self.G = cached[2]
 
-    def solve_band(self, x: np.ndarray, y: np.ndarray, layers: int, max_steps: int = 30):
+    def solve_band(self, x: np.ndarray, y: np.ndarray, layers: int, max_steps: int = 8, max_fraction: float = 1.0):
         """The obstacle problem on the band of ``layers`` layers around the free boundary of (x, y), the unknowns
         outside the band frozen: (x', y', rows whose class changed), or None (not applicable: a row with a lower
-        unknown, K not SPD; no free boundary; the local active-set iteration did not settle).
+        unknown, K not SPD; no free boundary; the band holds more than ``max_fraction`` of the rows; the local
+        active-set iteration did not settle in ``max_steps`` steps).
 
         The band's energy 1/2 x_U.K_UU x_U - c.x_U (c = F_U - K_{U,rest} x_rest) is minimized on x_U >= b by the
         primal-dual active-set iteration (Newton-min on the band) with sparse Cholesky solves of the free rows,
@@ -85,6 +86,8 @@ class FreeBoundaryRelaxation:
         if not len(edge):
             return None
         rows = self.band(edge, layers)
+        if len(rows) > max_fraction * len(s.up):
+            return None
         U = s.up[rows]
         order = np.argsort(U)  # the band's unknowns increasing (submatrix), rows in the same order
         rows, U = rows[order], U[order]

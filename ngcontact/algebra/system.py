@@ -262,8 +262,10 @@ class ComplementaritySystem:
     #: projected Jacobi sweeps (damping) of :meth:`warm_start` for one-sided systems
     WARM_SWEEPS, WARM_OMEGA = 5, 2.0 / 3.0
     #: layers of the band around the free boundary on which :meth:`warm_start` solves the obstacle problem
-    #: (0: none).  With 40 the nested ex9 levels take one Newton step each (results/bench/BENCH.md, newton_its)
-    WARM_BAND = 40
+    #: (0: none).  With 40 the nested ex9 levels take one Newton step each (results/bench/BENCH.md, newton_its).
+    #: Above WARM_BAND_ALL rows the band solve is skipped when the band holds more than WARM_BAND_FRACTION of
+    #: them: its sparse Cholesky factorizations would cost more than the Newton step they save
+    WARM_BAND, WARM_BAND_ALL, WARM_BAND_FRACTION = 40, 20000, 0.4
 
     def warm_start(self, x0: np.ndarray, y0: np.ndarray):
         """Nested-iteration start (x, y) from an interpolated coarser solution (x0, y0).
@@ -325,7 +327,8 @@ class ComplementaritySystem:
         if one.all() and self.WARM_BAND:
             from .relax import FreeBoundaryRelaxation  # (relax reads the system; no import at module level)
 
-            band = FreeBoundaryRelaxation(self).solve_band(x, y, self.WARM_BAND)
+            band = FreeBoundaryRelaxation(self).solve_band(
+                x, y, self.WARM_BAND, max_fraction=1.0 if self.m <= self.WARM_BAND_ALL else self.WARM_BAND_FRACTION)
             if band is not None:
                 x, y = band[0], band[1]
         return x, y
