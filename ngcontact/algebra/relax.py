@@ -33,6 +33,7 @@ from typing import Tuple
 import numpy as np
 import scipy.sparse as sp
 
+from .linalg import SPDSolver
 from .sparse import submatrix
 
 __all__ = ["FreeBoundaryRelaxation"]
@@ -78,8 +79,6 @@ class FreeBoundaryRelaxation:
         s = self.system
         if not self.applicable or self.two.any() or layers < 1:
             return None
-        from .linalg import SPDSolver
-
         w = s.constraint_weight
         active = w * s.gap(x) <= y
         edge = self.boundary(active)

@@ -40,6 +40,7 @@ import scipy.sparse as sp
 
 from .certificate import certificate
 from .linalg import SPDSolver
+from .relax import FreeBoundaryRelaxation
 from .sparse import submatrix
 
 __all__ = ["ComplementaritySystem", "LinearizedStep", "StepInfo", "RowClasses", "classify_rows", "LINEAR_PATHS",
@@ -325,8 +326,6 @@ class ComplementaritySystem:
         w = self.constraint_weight
         y[one] = np.minimum(y[one], w * y_res / c)
         if one.all() and self.WARM_BAND:
-            from .relax import FreeBoundaryRelaxation  # (relax reads the system; no import at module level)
-
             band = FreeBoundaryRelaxation(self).solve_band(
                 x, y, self.WARM_BAND, max_fraction=1.0 if self.m <= self.WARM_BAND_ALL else self.WARM_BAND_FRACTION)
             if band is not None:
