@@ -245,8 +245,8 @@ class ComplementaritySystem:
             if np.any(d1 <= 0):
                 return None
             alpha = float(K[m, m] / d1[0])
-            d = K.data
-            if not alpha > 0 or float(np.max(np.abs(d[nnz1:] - alpha * d[:nnz1]))) > rtol * float(np.max(np.abs(d[:nnz1]))):
+            d1_all, d2_all = K.data[:nnz1], K.data[nnz1:]
+            if not alpha > 0 or float(np.max(np.abs(d2_all - alpha * d1_all))) > rtol * float(np.max(np.abs(d1_all))):
                 return None
             return S, alpha
         S, K22 = K[:m, :m], K[m:, m:]

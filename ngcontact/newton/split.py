@@ -158,7 +158,8 @@ class MembraneSplit:
 
     def step(self, k: int, x: np.ndarray, lin, target: float, early) -> Optional[tuple]:
         """(x', y', fields) of the coupled step ``lin`` at the iterate x, or None (the step is to be solved on the
-        coupled system; :attr:`its` counts the CG iterations spent either way).  ``early(A, b, z0, mg, target, active, eq)``: the session's early-exit CG (or None)."""
+        coupled system; :attr:`its` counts the CG iterations spent either way).  ``early(A, b, z0, mg, target,
+        active, eq)``: the session's early-exit CG (or None)."""
         opt, system, m = self.opt, self.system, self.system.m
         self.its = 0
         if self.s is None and not self._solve_s(x, 0.25 * target):
