@@ -263,10 +263,11 @@ class ComplementaritySystem:
     #: projected Jacobi sweeps (damping) of :meth:`warm_start` for one-sided systems
     WARM_SWEEPS, WARM_OMEGA = 5, 2.0 / 3.0
     #: layers of the band around the free boundary on which :meth:`warm_start` solves the obstacle problem
-    #: (0: none).  With 40 the nested ex9 levels take one Newton step each (results/bench/BENCH.md, newton_its).
-    #: Above WARM_BAND_ALL rows the band solve is skipped when the band holds more than WARM_BAND_FRACTION of
-    #: them: its sparse Cholesky factorizations would cost more than the Newton step they save
-    WARM_BAND, WARM_BAND_ALL, WARM_BAND_FRACTION = 40, 20000, 0.4
+    #: (0: none).  With 40 the nested ex9 levels whose band is solved take one Newton step each
+    #: (results/bench/BENCH.md, newton_its).  Above WARM_BAND_ALL rows the band solve is skipped when the band
+    #: holds more than WARM_BAND_FRACTION of them: there its sparse Cholesky factorizations cost about as much as
+    #: the multigrid Newton step they save, or more
+    WARM_BAND, WARM_BAND_ALL, WARM_BAND_FRACTION = 40, 2000, 0.2
 
     def warm_start(self, x0: np.ndarray, y0: np.ndarray):
         """Nested-iteration start (x, y) from an interpolated coarser solution (x0, y0).
