@@ -267,7 +267,7 @@ class ComplementaritySystem:
     #: (results/bench/BENCH.md, newton_its).  Above WARM_BAND_ALL rows the band solve is skipped when the band
     #: holds more than WARM_BAND_FRACTION of them: there its sparse Cholesky factorizations cost about as much as
     #: the multigrid Newton step they save, or more
-    WARM_BAND, WARM_BAND_ALL, WARM_BAND_FRACTION = 40, 2000, 0.2
+    WARM_BAND, WARM_BAND_ALL, WARM_BAND_FRACTION = 40, 20000, 0.2
 
     def warm_start(self, x0: np.ndarray, y0: np.ndarray):
         """Nested-iteration start (x, y) from an interpolated coarser solution (x0, y0).
