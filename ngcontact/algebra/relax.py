@@ -90,11 +90,7 @@ class FreeBoundaryRelaxation:
         U = s.up[rows]
         order = np.argsort(U)  # the band's unknowns increasing (submatrix), rows in the same order
         rows, U = rows[order], U[order]
-        KU = self.K[U]  # the band's rows only: the submatrix below passes over them, not over K
-        x_rest = np.array(x, dtype=float)
-        x_rest[U] = 0.0
-        c = s.F[U] - KU @ x_rest
-        KUU = submatrix(KU, np.ones(len(U), dtype=bool), U)
+        KUU, c = self._frozen(U, x)
         b, D = s.b[rows], s.D[rows]
         act = active[rows].copy()
         xU = np.array(x, dtype=float)[U]
@@ -116,6 +112,14 @@ class FreeBoundaryRelaxation:
         y = np.array(y, dtype=float)
         y[rows] = np.where(act, np.maximum(lam, 0.0), 0.0)
         return x, y, int(np.count_nonzero(act != active[rows]))
+
+    def _frozen(self, U: np.ndarray, x: np.ndarray):
+        """(K_UU, c = F_U - K_{U,rest} x_rest): the block of the increasing unknowns U, the rest of x frozen
+        (the submatrix passes over U's rows only, not over K)."""
+        KU = self.K[U]
+        x_rest = np.array(x, dtype=float)
+        x_rest[U] = 0.0
+        return submatrix(KU, np.ones(len(U), dtype=bool), U), self.system.F[U] - KU @ x_rest
 
     def boundary(self, active: np.ndarray) -> np.ndarray:
         """The rows of the free boundary of ``active``: active rows next to an inactive one and inactive rows
@@ -159,19 +163,11 @@ class FreeBoundaryRelaxation:
         in_band[up] = True
         in_band[lo[two]] = True
         U = np.flatnonzero(in_band)
-        # the sweeps run on the band's unknowns only: x_U with the rest of x frozen in c = F_U - K_{U,rest} x_rest
+        # the sweeps run on the band's unknowns only: x_U with the rest of x frozen
         local = np.full(s.n, -1, dtype=np.int64)
         local[U] = np.arange(len(U))
-        KU = self.K[U]
-        x_rest = np.array(x, dtype=float)
-        xU = x_rest[U].copy()
-        x_rest[U] = 0.0
-        c = s.F[U] - KU @ x_rest
-        cols = local[KU.indices]
-        inside = cols >= 0
-        per_row = np.add.reduceat(inside, KU.indptr[:-1], dtype=np.int64) if KU.nnz else np.zeros(len(U), np.int64)
-        KUU = sp.csr_matrix((KU.data[inside], cols[inside], np.concatenate([[0], np.cumsum(per_row)])),
-                            shape=(len(U), len(U)))
+        KUU, c = self._frozen(U, x)
+        xU = np.array(x, dtype=float)[U]
         dU = self.d[U]
         pu, pl = local[up], local[lo]  # pl = pu on one-sided rows (lo_safe)
         d_up, d_lo = self.d[up], self.d[lo]

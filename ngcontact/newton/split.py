@@ -27,7 +27,6 @@ alpha otherwise), in the exact mode.
 """
 from __future__ import annotations
 
-import time
 from typing import Optional, Tuple
 
 import numpy as np
@@ -93,7 +92,8 @@ class MembraneSplit:
         self.dS = S.diagonal()
         self.hierarchy = HierarchyCache(prolongations, opt, system.solver)
         self.s = None  # s' (the same for every step), solved at the first step
-        self.time_s = 0.0
+        self._mg_s = None  # its V-cycle, built when s of the iterate does not solve its equation
+        self.its = 0  # CG iterations of the last :meth:`step` (s and w), also when it returned None
 
     @classmethod
     def build(cls, system, opt) -> Optional["MembraneSplit"]:
@@ -113,28 +113,22 @@ class MembraneSplit:
     def _solve_s(self, x: np.ndarray, target: float) -> bool:
         """s' = S^-1 (F_1 + F_2) from s of the iterate x, to ||S s' - F_1 - F_2|| <= ``target``: whether CG got
         there (its iterations are added to :attr:`its`)."""
-        t0 = time.perf_counter()
         m, sys_ = self.system.m, self.system
         rhs = sys_.F[:m] + sys_.F[m:]
         s0 = x[:m] + self.alpha * x[m:] if self.s is None else self.s
         bnorm = float(np.linalg.norm(rhs)) or 1.0
         if float(np.linalg.norm(rhs - self.S @ s0)) <= target:  # s of the iterate is s' already (no hierarchy)
             self.s = s0
-            self.time_s += time.perf_counter() - t0
             return True
         if self._mg_s is None:
             self._mg_s = Multigrid(self.S, self.prolongations, None, degree=self.opt.degree, ratio=self.opt.ratio,
                                    solver=sys_.solver, smoother=self.opt.smoother)
         res = pcg(self.S, rhs, self._mg_s, s0, rtol=target / bnorm, maxiter=self.opt.maxiter)
-        self.time_s += time.perf_counter() - t0
         self.its += res.iterations
         if not res.converged:
             return False
         self.s = res.x
         return True
-
-    _mg_s = None
-    its = 0  # CG iterations of the last :meth:`step` (s and w), also when it returned None
 
     def _coupled(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin) -> Tuple[np.ndarray, np.ndarray]:
         """The coupled iterate (x', y') of w' (kept rows ``w_free``, eq rows ``w_eq``) and s'."""
