@@ -215,9 +215,45 @@ def test_band_solve_covering_everything_is_the_discrete_solution():
     assert changed > 0  # the lifted start: rows let go are taken back
 
 
+def test_unsettled_band_solve_hands_on_the_next_active_set():
+    """solve_band(settle=False) stops after max_steps solves and encodes the iteration's next active set in y:
+    one step from its result is the iteration's second step (ex9 level 3, band = the whole mesh), chained
+    steps reach the discrete solution, and Newton from the one-step result ends at that solution."""
+    from ngcontact.algebra.relax import FreeBoundaryRelaxation
+    from ngcontact.discretizations.fem import FEMDiscretization
+    from ngcontact.scenes import load_scene
+
+    scene = load_scene("ex9_obstacle")
+    meshes = list(scene.problem.domain.meshes(4))
+    coarse = FEMDiscretization(scene.problem, meshes[2], order=1)
+    sc = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess), NewtonOptions())
+    fine = FEMDiscretization(scene.problem, meshes[3], order=1)
+    s = fine.system
+    x0, y0 = fine.prolongate(coarse, sc.x, sc.y)
+    x0 = x0 + 0.5 * np.median(y0[y0 > 0]) / s.constraint_weight  # part of the contact set let go
+    ref = semismooth_newton(s, x0, y0, NewtonOptions())
+    R, L = FreeBoundaryRelaxation(s), 10 ** 6
+    assert R.solve_band(x0, y0, L, max_steps=1) is None  # settle=True: one solve does not settle here
+    one = R.solve_band(x0, y0, L, max_steps=1, settle=False)
+    two = R.solve_band(x0, y0, L, max_steps=2, settle=False)
+    assert one[2] > 0
+    again = R.solve_band(one[0], one[1], L, max_steps=1, settle=False)
+    np.testing.assert_allclose(again[0], two[0], rtol=0, atol=1e-12 * np.abs(ref.x).max())
+    np.testing.assert_allclose(again[1], two[1], rtol=0, atol=1e-9 * np.abs(ref.y).max())
+    x, y = one[0], one[1]
+    for _ in range(20):
+        x, y, changed = R.solve_band(x, y, L, max_steps=1, settle=False)
+        if not changed:
+            break
+    np.testing.assert_allclose(x, ref.x, rtol=0, atol=1e-10 * np.abs(ref.x).max())
+    res = semismooth_newton(s, one[0], one[1], NewtonOptions())
+    assert res.converged and res.iterations < ref.iterations
+    np.testing.assert_allclose(res.x, ref.x, rtol=0, atol=1e-10 * np.abs(ref.x).max())
+
+
 def test_nested_obstacle_start_band_solve_saves_the_second_newton_step(monkeypatch):
     """The band solve of the nested start (ComplementaritySystem.WARM_BAND layers): ex9 on 6 nested levels takes
-    one Newton step on the finest level (261k unknowns, a band of 16 % of them), two without it; with the band
+    one Newton step on the finest level (261k unknowns, a band of 16 % of them; Newton-min and FB), two without it; with the band
     solved on every level (no size rule) one step per level; the same converged solutions."""
     from ngcontact.algebra.system import ComplementaritySystem
     from ngcontact.drivers import RunOptions, run_scene
@@ -225,6 +261,11 @@ def test_nested_obstacle_start_band_solve_saves_the_second_newton_step(monkeypat
 
     sc = load_scene("ex9_obstacle")
     band = run_scene(sc, RunOptions(levels=6))
+    # Fischer-Burmeister: the band iteration settles before Newton starts (an unsettled start handed on, as for
+    # Newton-min above WARM_BAND_ALL rows, took FB 4 steps on the finest level)
+    fb = run_scene(sc, RunOptions(levels=6, cfun="fb"))
+    assert fb.rows[-1]["newton_its"] == 1
+    assert fb.rows[-1]["err_energy"] == pytest.approx(band.rows[-1]["err_energy"], rel=1e-10)
     monkeypatch.setattr(ComplementaritySystem, "WARM_BAND_ALL", 10 ** 9)
     everywhere = run_scene(sc, RunOptions(levels=6))
     monkeypatch.setattr(ComplementaritySystem, "WARM_BAND", 0)

@@ -66,16 +66,22 @@ class FreeBoundaryRelaxation:
                 system.__dict__["_row_graph"] = cached
             self.G = cached[2]
 
-    def solve_band(self, x: np.ndarray, y: np.ndarray, layers: int, max_steps: int = 8, max_fraction: float = 1.0):
+    def solve_band(self, x: np.ndarray, y: np.ndarray, layers: int, max_steps: int = 8, max_fraction: float = 1.0,
+                   settle: bool = True):
         """The obstacle problem on the band of ``layers`` layers around the free boundary of (x, y), the unknowns
         outside the band frozen: (x', y', rows whose class changed), or None (not applicable: a row with a lower
         unknown, K not SPD; no free boundary; the band holds more than ``max_fraction`` of the rows; the local
-        active-set iteration did not settle in ``max_steps`` steps).
+        active-set iteration did not settle in ``max_steps`` steps and ``settle``).
 
         The band's energy 1/2 x_U.K_UU x_U - c.x_U (c = F_U - K_{U,rest} x_rest) is minimized on x_U >= b by the
         primal-dual active-set iteration (Newton-min on the band) with sparse Cholesky solves of the free rows,
         from the active set of (x, y); the band rows' multipliers are read off the residual, y = (K x - F) / D
-        (the obstacle row's equation), zero on the inactive rows.  Rows outside the band keep x and y."""
+        (the obstacle row's equation), zero on the inactive rows.  Rows outside the band keep x and y.
+
+        ``settle=False``: after ``max_steps`` solves the last one is returned even if the active set still
+        changes, with y = (K x - F) / D on the rows it solved as active (negative where the iteration drops
+        them) and 0 on the others, so that the active set {w g <= y} of the result is the iteration's next
+        one: a Newton-min step from it is the band iteration's next step, taken on the whole system."""
         s = self.system
         if not self.applicable or self.two.any() or layers < 1:
             return None
@@ -94,7 +100,7 @@ class FreeBoundaryRelaxation:
         b, D = s.b[rows], s.D[rows]
         act = active[rows].copy()
         xU = np.array(x, dtype=float)[U]
-        for _ in range(max_steps):
+        for step in range(max_steps):
             free = ~act
             xU[act] = b[act]
             rhs = c - KUU @ np.where(act, b, 0.0)
@@ -102,16 +108,19 @@ class FreeBoundaryRelaxation:
                 xU[free] = SPDSolver(submatrix(KUU, free, free), s.solver).solve(rhs[free])
             lam = (KUU @ xU - c) / D
             new = (act & (lam > 0)) | (free & (xU < b))  # Newton-min on min(w (x - b), y): the next active set
-            if np.array_equal(new, act):
+            if np.array_equal(new, act) or step == max_steps - 1:
                 break
             act = new
-        else:
+        if settle and not np.array_equal(new, act):
             return None
         x = np.array(x, dtype=float)
         x[U] = xU
         y = np.array(y, dtype=float)
-        y[rows] = np.where(act, np.maximum(lam, 0.0), 0.0)
-        return x, y, int(np.count_nonzero(act != active[rows]))
+        # y = lam on the rows solved as active (>= 0 once settled), 0 on the free ones: the active set
+        # {w g <= y} of the result is the next one of the iteration, `new` (dropped: lam < 0 at g = 0; added:
+        # g < 0 at y = 0)
+        y[rows] = np.where(act, lam, 0.0)
+        return x, y, int(np.count_nonzero(new != active[rows]))
 
     def _frozen(self, U: np.ndarray, x: np.ndarray):
         """(K_UU, c = F_U - K_{U,rest} x_rest): the block of the increasing unknowns U, the rest of x frozen

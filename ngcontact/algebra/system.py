@@ -268,8 +268,14 @@ class ComplementaritySystem:
     #: holds more than WARM_BAND_FRACTION of them: there its sparse Cholesky factorizations cost about as much as
     #: the multigrid Newton step they save, or more
     WARM_BAND, WARM_BAND_ALL, WARM_BAND_FRACTION = 40, 20000, 0.2
+    #: above WARM_BAND_ALL rows: solves of the band iteration; after the last one, its next active set is handed
+    #: to the first Newton step (which takes the iteration's next step on the whole system: on the nested ex9
+    #: levels the second band solve only confirmed the active set the first Newton step keeps); Newton-min only
+    #: (warm_start's ``hand_on``: Fischer-Burmeister took 4 steps from such a start on the 261k ex9 level, 1 from
+    #: the settled one).  Otherwise up to 8 solves, and the band start only if the active set settles
+    WARM_BAND_STEPS = 1
 
-    def warm_start(self, x0: np.ndarray, y0: np.ndarray):
+    def warm_start(self, x0: np.ndarray, y0: np.ndarray, hand_on: bool = True):
         """Nested-iteration start (x, y) from an interpolated coarser solution (x0, y0).
 
         Newton-min's first step depends only on the active set {g(x) <= y} of
@@ -293,9 +299,11 @@ class ComplementaritySystem:
         leaves fewer rows for the first Newton step to change.  Then the obstacle problem is
         solved on the band of ``WARM_BAND`` layers of rows around the free boundary of that start,
         the rest frozen (:meth:`~ngcontact.algebra.relax.FreeBoundaryRelaxation.solve_band`: a
-        few sparse Cholesky solves of the band's free rows): the discrete free boundary moves by
-        about one layer per Newton-min step, the band solve moves it in one go, and the first
-        Newton step usually keeps its active set.
+        few sparse Cholesky solves of the band's free rows; above ``WARM_BAND_ALL`` rows and with
+        ``hand_on`` (the start of Newton-min) ``WARM_BAND_STEPS`` of them, the active set after the last
+        one handed on to the first Newton step; otherwise until the active set settles): the discrete
+        free boundary moves by about one layer per Newton-min step, the band solve moves it in one
+        go, and the first Newton step usually keeps its active set.
         """
         x = np.array(x0, dtype=float)
         y = np.array(y0, dtype=float)
@@ -327,8 +335,11 @@ class ComplementaritySystem:
         w = self.constraint_weight
         y[one] = np.minimum(y[one], w * y_res / c)
         if one.all() and self.WARM_BAND:
+            small = self.m <= self.WARM_BAND_ALL
+            settle = small or not hand_on
             band = FreeBoundaryRelaxation(self).solve_band(
-                x, y, self.WARM_BAND, max_fraction=1.0 if self.m <= self.WARM_BAND_ALL else self.WARM_BAND_FRACTION)
+                x, y, self.WARM_BAND, max_fraction=1.0 if small else self.WARM_BAND_FRACTION,
+                max_steps=8 if settle else self.WARM_BAND_STEPS, settle=settle)
             if band is not None:
                 x, y = band[0], band[1]
         return x, y

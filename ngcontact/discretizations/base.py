@@ -96,8 +96,9 @@ class Discretization(ABC):
         """(x0, y0) from CoefficientFunctions per field (None: zero), y0 = 0."""
 
     @abstractmethod
-    def prolongate(self, previous: "Discretization", x, y):
-        """Nested iteration: (x0, y0) on this level from a coarser level's solution (x, y)."""
+    def prolongate(self, previous: "Discretization", x, y, cfun: str = "min"):
+        """Nested iteration: (x0, y0) on this level from a coarser level's solution (x, y); ``cfun``: the
+        C-function of the Newton run that starts from it (a start may be tuned to Newton-min's first step)."""
 
     def unknown_prolongation(self, previous: "Discretization"):
         """The sparse matrix P with x = P x_c interpolating the unknowns x_c of the coarser, nested level

@@ -207,7 +207,7 @@ class DGDiscretization(BrokenDiscretization):
                 x0[a * self.n1:(a + 1) * self.n1] = self.basis.interpolate(cf).ravel()
         return x0, np.zeros(self.n_interior)
 
-    def prolongate(self, previous, x, y):
+    def prolongate(self, previous, x, y, cfun: str = "min"):
         """Nested iteration: the coarse cell polynomials at this mesh's cell nodes (exact on
         nested meshes) and the moments of the coarse lam_h against the fine nodal basis."""
         U1, U2, lam = self._coarse_fields(previous, x, y)

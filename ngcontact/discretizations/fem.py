@@ -241,8 +241,9 @@ class FEMDiscretization(Discretization):
                 x0[a * ni:(a + 1) * ni] = self.nodes.from_values(self.nodes.evaluate(CoefficientFunction(cf)))[self.interior]
         return x0, np.zeros(ni)
 
-    def prolongate(self, previous: "FEMDiscretization", x, y):
-        """Nested iteration: interpolate a coarser level's solution at this level's nodes."""
+    def prolongate(self, previous: "FEMDiscretization", x, y, cfun: str = "min"):
+        """Nested iteration: interpolate a coarser level's solution at this level's nodes
+        (:meth:`~ngcontact.algebra.system.ComplementaritySystem.warm_start`; ``cfun`` the Newton run's C-function)."""
         pts = self.nodes.coords[self.interior]
         names = list(self.problem.field_names)
         if self.order == 1 and previous.order == 1:  # nested P1 meshes: no point search needed
@@ -253,7 +254,7 @@ class FEMDiscretization(Discretization):
             if vals is None:
                 vals = _nested_p1_values(previous, pts, stacked)
             if vals is not None:
-                return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1])
+                return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1], hand_on=cfun == "min")
         gfs = previous.gridfunctions(x, y)
         curved = getattr(previous.problem.domain, "curved", False) and previous.order > 1
         bernstein = self.constraints == "bernstein" and self.order > 1
@@ -271,7 +272,7 @@ class FEMDiscretization(Discretization):
             full[self.interior] = lam
             y0 = self.mass_nodal() @ full
             y0 = y0[self.interior]
-        return self.system.warm_start(x0, y0)  # obstacle rows: projected, first active set from the residual
+        return self.system.warm_start(x0, y0, hand_on=cfun == "min")  # obstacle rows: projected, first active set from the residual
 
     def unknown_prolongation(self, previous: "FEMDiscretization"):
         """Nested P1 interpolation of all fields' interior unknowns from ``previous`` (P1 on the parent

@@ -292,7 +292,7 @@ class HHODiscretization(BrokenDiscretization):
                 U[a] = B.interpolate(cf)
         return self._assemble_x(*U), np.zeros(self.n_interior)
 
-    def prolongate(self, previous, x, y):
+    def prolongate(self, previous, x, y, cfun: str = "min"):
         """Nested iteration: the coarse cell polynomials at this mesh's cell nodes (exact on
         nested meshes), faces from the cell traces, X3 = moments of the coarse lam_h."""
         U1, U2, lam = self._coarse_fields(previous, x, y)

@@ -118,7 +118,7 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     t0 = time.perf_counter()
     if options.newton in MULTIGRID_NEWTON or (options.newton in GMRES_NEWTON and options.krylov == "cg"):
         disc.mg_prolongations = multigrid_hierarchy(disc, previous[0] if previous is not None else None)
-    x0, y0 = disc.prolongate(*previous) if warm else disc.initial_guess(initial_guess)
+    x0, y0 = disc.prolongate(*previous, cfun=options.cfun) if warm else disc.initial_guess(initial_guess)
     previous = None
     t1 = time.perf_counter()
     sol = newton_solve(disc, x0, y0, options, callback, warm=warm)
