@@ -274,3 +274,33 @@ def test_split_is_not_used_for_tensions_far_apart():
     res = run_scene(sc, RunOptions(levels=3, newton="multigrid"))
     assert res.converged and not any(it["split"] for it in res.iterations)
     assert any(it["pcg_its"] for it in res.iterations)
+
+
+def test_loop_residuals_of_split_steps_are_those_of_their_iterates(monkeypatch):
+    """The split steps hand their acceptance residual to the loop (Trial.residual), which takes it instead of
+    forming it again -- never for a relaxed point: every recorded ||Phi|| / ||F|| must be that of the iterate the
+    loop holds (test1, 5 levels, CG without the early exit: relaxed and accepted split steps on the finer levels)."""
+    from ngcontact.drivers import level
+    from ngcontact.newton.loop import relative_residual
+
+    seen, newton = [], level.semismooth_newton
+
+    def watched(system, x0, y0, options, callback=None, **kw):
+        its = []
+        res = newton(system, x0, y0, options, lambda rec: its.append(rec), **kw,
+                                on_iterate=lambda k, x, y: its.append((k, x.copy(), y.copy())))
+        recs = [r for r in its if not isinstance(r, tuple)]
+        points = [r for r in its if isinstance(r, tuple)]
+        assert len(recs) == len(points)
+        for rec, (k, x, y) in zip(recs, points):
+            assert rec.k == k
+            seen.append((rec.relaxed, rec.split, rec.res, relative_residual(system, options.cfun, x, y)))
+        return res
+
+    monkeypatch.setattr(level, "semismooth_newton", watched)
+    opts = RunOptions(levels=5, newton="multigrid")
+    object.__setattr__(opts, "linear", replace(opts.linear, early_exit=False))  # every split step tests its point
+    run_scene(load_scene("test1"), opts)
+    assert any(s[0] and s[1] for s in seen) and sum(s[1] and not s[0] for s in seen) >= 3
+    for relaxed, split, res, true in seen:
+        assert res == pytest.approx(true, rel=1e-9, abs=1e-15)

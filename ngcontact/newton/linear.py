@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import List
+from typing import List, Optional
 
 import numpy as np
 
@@ -60,13 +60,16 @@ GMRES_STOP = {"tolerance": 0, "monitor": 1, "maxiter": 2, "stagnation": 3}
 class Trial:
     """The full Newton iterate of one step, the linear-solve time and the record fields the strategy measured.
     ``provisional``: the point is not the solution of the step's linearization (a relaxed iterate,
-    :mod:`.multigrid`); the loop does not stop at it, the next step starts from it."""
+    :mod:`.multigrid`); the loop does not stop at it, the next step starts from it.  ``residual``: K x - B^T D y - F
+    at (x, y) where the strategy has computed it for its own tests (the loop's merit takes it instead of forming
+    it again), else None."""
 
     x: np.ndarray
     y: np.ndarray
     time_linear: float
     fields: dict
     provisional: bool = False
+    residual: Optional[np.ndarray] = None
 
 
 # ---------------------------------------------------------------- direct solves

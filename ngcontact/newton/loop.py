@@ -86,8 +86,8 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     Record = linear.record_type
     emit = (lambda k, x, y: on_iterate(k, x * s, y * s)) if on_iterate else None
 
-    def merit(x, y):
-        r = system.residual(x, y)
+    def merit(x, y, r=None):
+        r = system.residual(x, y) if r is None else r
         c = cf.value(*system.pair(x, y))
         return r, c, 0.5 * (r @ r + c @ c)
 
@@ -138,7 +138,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
                 x, y, r, c, psi = xt, yt, rt, ct, psit
         else:
             x, y = trial.x, trial.y
-            r, c, psi = merit(x, y)
+            r, c, psi = merit(x, y, trial.residual)
         extra = session.after_step(k, x, y, step)
         new_active = np.less_equal(*system.pair(x, y))
         rec = Record(k=k, res=float(np.sqrt(2 * psi) / scale), res_lin=float(np.linalg.norm(r) / scale),

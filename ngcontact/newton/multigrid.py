@@ -164,9 +164,9 @@ class _MultigridSession:
             out = self.split.step(k, x, lin, floor, self._early_exit if early else None)
             self.cg_cum += self.split.its
             if out is not None:
-                xn, yn, split_fields = out
+                xn, yn, split_fields, r = out
                 fields.update(split_fields, linear_path=LINEAR_PATHS.index("multigrid"))
-                return self._trial(k, xn, yn, lin, fields, t0)
+                return self._trial(k, xn, yn, lin, fields, t0, residual=r)
             spent = self.split.its
         z = None
         if opt.prolongations or lin.size >= opt.amg_min_size:
@@ -201,15 +201,16 @@ class _MultigridSession:
         xn, yn = lin.recover(z)
         return self._trial(k, xn, yn, lin, fields, t0)
 
-    def _trial(self, k, xn, yn, lin, fields, t0) -> Trial:
-        """The step's iterate, relaxed at the free boundary where that applies."""
+    def _trial(self, k, xn, yn, lin, fields, t0, residual=None) -> Trial:
+        """The step's iterate, relaxed at the free boundary where that applies (``residual``: that of (xn, yn),
+        handed on unless the point is relaxed)."""
         opt = self.opt
         fields["cg_cum"] = self.cg_cum
         t_lin = time.perf_counter() - t0
         relaxed = False
         if opt.relax_sweeps and k <= opt.relax_steps and not lin.mixed.any():
             xn, yn, relaxed = self._relax(xn, yn, lin, fields)
-        return Trial(xn, yn, t_lin, fields, provisional=relaxed)
+        return Trial(xn, yn, t_lin, fields, provisional=relaxed, residual=None if relaxed else residual)
 
     def _relax(self, x, y, lin, fields):
         """The free-boundary relaxation (:mod:`~ngcontact.algebra.relax`) of a Newton-min iterate whose active set

@@ -151,8 +151,9 @@ class MembraneSplit:
         return system.constraint_weight * w <= y
 
     def step(self, k: int, x: np.ndarray, lin, target: float, early) -> Optional[tuple]:
-        """(x', y', fields) of the coupled step ``lin`` at the iterate x, or None (the step is to be solved on the
-        coupled system; :attr:`its` counts the CG iterations spent either way).  ``early(A, b, z0, mg, target,
+        """(x', y', fields, residual) of the coupled step ``lin`` at the iterate x (residual: K x' - B^T D y' - F where
+        the acceptance test formed it, else None), or None (the step is to be solved on the coupled system;
+        :attr:`its` counts the CG iterations spent either way).  ``early(A, b, z0, mg, target,
         active, eq)``: the session's early-exit CG (or None)."""
         opt, system, m = self.opt, self.system, self.system.m
         self.its = 0
@@ -182,7 +183,7 @@ class MembraneSplit:
             self.its += res.iterations
             if stopped:
                 xn, yn = to_full(res.x)
-                return xn, yn, dict(fields, pcg_its=self.its, cg_early=1)
+                return xn, yn, dict(fields, pcg_its=self.its, cg_early=1), None
         else:
             res = pcg(ws.A, ws.b, mg, z0, rtol=t_w / bnorm, maxiter=opt.maxiter)
             self.its += res.iterations
@@ -197,7 +198,7 @@ class MembraneSplit:
             u_scale = float(np.max(np.abs(xn), initial=0.0))
             if float(np.linalg.norm(r)) <= target \
                     and float(np.max(np.abs(r / dA), initial=0.0)) <= opt.accuracy * opt.tol * u_scale:
-                return xn, yn, dict(fields, pcg_its=self.its)
+                return xn, yn, dict(fields, pcg_its=self.its), r
             # CG continues on both parts with 1e-3 times the targets
             target, t_w = 1e-3 * target, 1e-3 * t_w
             if not self._solve_s(x, 0.25 * target):
