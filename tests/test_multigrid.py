@@ -12,6 +12,7 @@ from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.drivers import RunOptions, run_scene
 from ngcontact.drivers.level import multigrid_hierarchy
 from ngcontact.problems.manufactured import scale_problem
+from ngcontact.newton import NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
 
 
@@ -304,3 +305,44 @@ def test_loop_residuals_of_split_steps_are_those_of_their_iterates(monkeypatch):
     assert any(s[0] and s[1] for s in seen) and sum(s[1] and not s[0] for s in seen) >= 3
     for relaxed, split, res, true in seen:
         assert res == pytest.approx(true, rel=1e-9, abs=1e-15)
+
+
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_split_coupled_iterate_is_the_coupled_steps_recover_bitwise(cfun):
+    """MembraneSplit._coupled forms the coupled iterate, its multiplier and residual from one product with each
+    diagonal block of K; they must be those of LinearizedStep.recover and system.residual, bit for bit (eq, fixed
+    and, with FB, mixed rows), and _active the active set of that iterate."""
+    from ngcontact.algebra.cfunctions import get_cfunction
+    from ngcontact.newton.multigrid import MultigridSolve
+    from ngcontact.newton.split import MembraneSplit, _WStep
+
+    sc = load_scene("test1")
+    disc = FEMDiscretization(sc.problem, list(sc.problem.domain.meshes(3))[-1], order=1)
+    s = disc.system
+    sol = semismooth_newton(s, *disc.initial_guess(sc.initial_guess), NewtonOptions())
+    rng = np.random.default_rng(1)
+    x = sol.x + 1e-3 * np.abs(sol.x).max() * rng.standard_normal(s.n)
+    y = sol.y * (1.0 + 0.1 * rng.standard_normal(s.m))
+    cf = get_cfunction(cfun)
+    Ca, Cb = s.chain(*cf.jacobian(*s.pair(x, y)))
+    lin = s.linearize(x, y, cf.value(*s.pair(x, y)), Ca, Cb)
+    assert (~lin.eq).any() and (lin.eq.any() if cfun == "min" else lin.mixed.any())
+    S, alpha = s.membrane_split()
+    ms = MembraneSplit(s, S, alpha, (), MultigridSolve())
+    m = s.m
+    ms.s = x[:m] + alpha * x[m:]
+    ws = _WStep(S, ~lin.eq, np.zeros(int((~lin.eq).sum())), lin)
+    w_eq = np.zeros(m)
+    # eq rows off their target gap: the slaves must be reset from their masters as recover does
+    w_eq[lin.eq_rows] = -lin.x_aff[lin.slaves] + 1e-4 * rng.standard_normal(len(lin.eq_rows))
+    w_free = (x[:m] - x[m:])[ws.keep] + 1e-4 * rng.standard_normal(ws.size)
+    xn, yn, r = ms._coupled(w_free, ws, w_eq, lin)
+    w = w_eq.copy()
+    w[ws.keep] = w_free
+    full = np.concatenate([(ms.s + alpha * w) / (1 + alpha), (ms.s - w) / (1 + alpha)])
+    xr, yr = lin.recover(lin.restrict(full))
+    assert np.array_equal(xn, xr) and np.array_equal(yn, yr)
+    assert np.array_equal(r, s.residual(xr, yr))
+    if cfun == "min":
+        assert np.array_equal(ms._active(w_free, ws, w_eq, lin), np.less_equal(*s.pair(xr, yr)))
+        assert len(lin.eq_rows) and not np.array_equal(full, xr)  # the reset mattered

@@ -376,42 +376,26 @@ class ComplementaritySystem:
         rc = classify_rows(self.gap(x), y, C, Ca, Cb, eps, self.constraint_weight)
         eq, fixed, mixed, g_target, y_fixed, w, c0 = rc.eq, rc.fixed, rc.mixed, rc.g_target, rc.y_fixed, rc.w, rc.c0
 
-        # right-hand side and matrix of the x-equation (before elimination)
-        rhs = self.F + self._B.T @ (self.D * np.where(fixed, y_fixed, 0.0))
+        # matrix of the x-equation (before elimination); its right-hand side is formed on first use
         Kaug = self.K
         if mixed.any():
-            Wm = self.D * w
             Bm = sp.diags(np.where(mixed, 1.0, 0.0)) @ self._B
-            Kaug = (self.K + Bm.T @ sp.diags(Wm) @ Bm).tocsr()
-            # -B^T D y' = -B^T D c0 + B_m^T D w (B x' - b): move known parts right
-            rhs = rhs + self._B.T @ (self.D * c0) + Bm.T @ (Wm * self.b)
-        # elimination of the slaves of equality rows: x = Z z + x_aff
+            Kaug = (self.K + Bm.T @ sp.diags(self.D * w) @ Bm).tocsr()
+        # elimination of the slaves of equality rows: x = Z z + x_aff (Z formed on first use)
         eq_rows = np.flatnonzero(eq)
         slave_is_lo = self.lo[eq_rows] >= 0
         slaves = np.where(slave_is_lo, self.lo[eq_rows], self.up[eq_rows])
         masters = np.where(slave_is_lo, self.up[eq_rows], -1)
         keep = np.ones(n, dtype=bool)
         keep[slaves] = False
-        red_index = -np.ones(n, dtype=np.int64)
-        red_index[keep] = np.arange(keep.sum())
-        nr = int(keep.sum())
-        # Z: identity on kept unknowns, slave (lo) = master (up) - target - b; at most one entry per row (a kept
-        # unknown's own column, a lower slave's master's), written as CSR directly
-        zcol = red_index.copy()
-        zcol[slaves[slave_is_lo]] = red_index[masters[slave_is_lo]]
-        has = zcol >= 0
-        itype = np.int32 if max(n, nr) < np.iinfo(np.int32).max else np.int64
-        zptr = np.zeros(n + 1, dtype=itype)
-        np.cumsum(has, out=zptr[1:])
-        Z = sp.csr_matrix((np.ones(int(zptr[-1])), zcol[has].astype(itype), zptr), shape=(n, nr))
         x_aff = np.zeros(n)
         tb = g_target[eq_rows] + self.b[eq_rows]
         x_aff[slaves] = np.where(slave_is_lo, -tb, tb)
 
         # A = Z^T Kaug Z and b = Z^T (rhs - Kaug x_aff) are formed on first use (the fixed-pattern factorization
         # of FactorReuse does not need A, the s/w splitting of two membranes neither)
-        return LinearizedStep(self, None, None, Z, x_aff, keep, eq, mixed, y_fixed, c0, w,
-                              eq_rows, slaves, slave_is_lo, _Kaug=Kaug, _rhs=rhs)
+        return LinearizedStep(self, None, None, x_aff, keep, eq, mixed, y_fixed, c0, w,
+                              eq_rows, slaves, slave_is_lo, _Kaug=Kaug, _masters=masters)
 
 
 @dataclass
@@ -429,7 +413,6 @@ class LinearizedStep:
     system: "ComplementaritySystem"
     _A: Optional[sp.csr_matrix]
     _b: Optional[np.ndarray]
-    Z: sp.csr_matrix
     x_aff: np.ndarray
     keep: np.ndarray
     eq: np.ndarray
@@ -442,13 +425,44 @@ class LinearizedStep:
     slave_is_lo: np.ndarray
     _Kaug: Optional[sp.csr_matrix] = field(default=None, repr=False)
     _Ks: Optional[sp.csr_matrix] = field(default=None, repr=False)
-    _rhs: Optional[np.ndarray] = field(default=None, repr=False)  # right-hand side of the x-equation
+    _masters: Optional[np.ndarray] = field(default=None, repr=False)  # master of each eq row's slave (-1: none)
+    _Z: Optional[sp.csr_matrix] = field(default=None, repr=False)
+
+    @property
+    def Z(self) -> sp.csr_matrix:
+        """x' = Z z + x_aff: identity on the kept unknowns, a lower slave's row its master's column (formed on
+        first use; :meth:`recover` does without it).  At most one entry per row, written as CSR directly."""
+        if self._Z is None:
+            n, keep = self.system.n, self.keep
+            nr = int(keep.sum())
+            red_index = -np.ones(n, dtype=np.int64)
+            red_index[keep] = np.arange(nr)
+            lo = self.slave_is_lo
+            zcol = red_index.copy()
+            zcol[self.slaves[lo]] = red_index[self._masters[lo]]
+            has = zcol >= 0
+            itype = np.int32 if max(n, nr) < np.iinfo(np.int32).max else np.int64
+            zptr = np.zeros(n + 1, dtype=itype)
+            np.cumsum(has, out=zptr[1:])
+            self._Z = sp.csr_matrix((np.ones(int(zptr[-1])), zcol[has].astype(itype), zptr), shape=(n, nr))
+        return self._Z
+
+    @property
+    def rhs(self) -> np.ndarray:
+        """The right-hand side of the x-equation before the elimination: F + B^T D y_fixed on the fixed rows, and on
+        mixed rows -B^T D y' = -B^T D c0 + B_m^T D w (B x' - b) with the known parts moved right."""
+        s = self.system
+        out = s.F + s._B.T @ (s.D * np.where(~self.eq & ~self.mixed, self.y_fixed, 0.0))
+        if self.mixed.any():
+            Bm = sp.diags(np.where(self.mixed, 1.0, 0.0)) @ s._B
+            out = out + s._B.T @ (s.D * self.c0) + Bm.T @ ((s.D * self.w) * s.b)
+        return out
 
     @property
     def b(self) -> np.ndarray:
         """The reduced right-hand side Z^T (rhs - Kaug x_aff) (formed on first use)."""
         if self._b is None:
-            self._b = self.Z.T @ (self._rhs - self._Kaug @ self.x_aff)
+            self._b = self.Z.T @ (self.rhs - self._Kaug @ self.x_aff)
         return self._b
 
     @property
@@ -475,10 +489,19 @@ class LinearizedStep:
         """z with Z z = x on the kept unknowns (warm start from a full vector x)."""
         return np.asarray(x)[self.keep]
 
+    def expand(self, z: np.ndarray) -> np.ndarray:
+        """x' = Z z + x_aff (by indexing: the kept unknowns are z, a lower slave its master's value)."""
+        x = np.zeros(self.system.n)
+        x[self.keep] = z
+        lo = self.slave_is_lo
+        x[self.slaves[lo]] = x[self._masters[lo]]
+        x += self.x_aff
+        return x
+
     def recover(self, z: np.ndarray):
         """(x', y') from the reduced unknowns z."""
         s = self.system
-        x_new = self.Z @ z + self.x_aff
+        x_new = self.expand(z)
         y_new = self.y_fixed.copy()
         mixed, eq = self.mixed, self.eq
         if mixed.any():

@@ -56,6 +56,17 @@ def single_field(prolongations) -> Optional[tuple]:
     return tuple(out)
 
 
+def _lower_block(K: sp.csr_matrix, m: int) -> sp.csr_matrix:
+    """K[m:, m:] of a block-diagonal K (no entry of the rows m.. left of column m): a view of K's arrays but for the
+    shifted column indices."""
+    K = K.tocsr()
+    nnz1 = int(K.indptr[m])
+    if K.nnz == nnz1 or int(K.indices[nnz1:].min()) >= m:
+        return sp.csr_matrix((K.data[nnz1:], K.indices[nnz1:] - m, K.indptr[m:] - nnz1), shape=(K.shape[0] - m,
+                                                                                                K.shape[1] - m))
+    return K[m:, m:].tocsr()
+
+
 class _WStep:
     """The w-system of one coupled step, with the interface :class:`~ngcontact.algebra.multigrid.HierarchyCache`
     reads (row classes, kept unknowns, the reduced matrix formed on first use)."""
@@ -90,6 +101,7 @@ class MembraneSplit:
         self.Fw = system.F[:m] - system.F[m:] / alpha
         self.a = 1.0 + 1.0 / alpha
         self.dS = S.diagonal()
+        self.K22 = _lower_block(system.K, m)  # the x_2 block of K (alpha S up to rounding)
         self.hierarchy = HierarchyCache(prolongations, opt, system.solver)
         self.s = None  # s' (the same for every step), solved at the first step
         self._mg_s = None  # its V-cycle, built when s of the iterate does not solve its equation
@@ -130,24 +142,39 @@ class MembraneSplit:
         self.s = res.x
         return True
 
-    def _coupled(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin) -> Tuple[np.ndarray, np.ndarray]:
-        """The coupled iterate (x', y') of w' (kept rows ``w_free``, eq rows ``w_eq``) and s'."""
+    def _coupled(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin):
+        """(x', y', K x' - B^T D y' - F): the coupled iterate of w' (kept rows ``w_free``, eq rows ``w_eq``) and s'
+        as the coupled step's :meth:`~ngcontact.algebra.system.LinearizedStep.recover` maps its kept unknowns
+        (the slaves x_2 = x_1 - g_target on the eq rows, y' on them from the slaves' equations), and its residual
+        -- the same numbers, from one product with each diagonal block of K (no rows of K extracted)."""
+        system, m, a = self.system, self.system.m, self.alpha
         w = w_eq.copy()
         w[ws.keep] = w_free
-        x = np.concatenate([(self.s + self.alpha * w) / (1.0 + self.alpha), (self.s - w) / (1.0 + self.alpha)])
-        return lin.recover(lin.restrict(x))
+        x1, x2 = (self.s + a * w) / (1.0 + a), (self.s - w) / (1.0 + a)
+        rows = lin.eq_rows
+        x2[rows] = x1[rows] + lin.x_aff[lin.slaves]  # Z z + x_aff at the slaves (x_2 of the eq rows)
+        K2x = self.K22 @ x2
+        y = lin.y_fixed.copy()
+        if lin.mixed.any():
+            mixed = lin.mixed
+            y[mixed] = lin.c0[mixed] - lin.w[mixed] * (x1 - x2)[mixed]
+        y[rows] = (K2x[rows] - system.F[m:][rows]) / -system.D[rows]
+        Dy = system.D * y
+        r = np.concatenate([self.S @ x1 - Dy, K2x + Dy]) - system.F
+        return np.concatenate([x1, x2]), y, r
 
-    def _active(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin, S_eq: sp.csr_matrix) -> np.ndarray:
+    def _active(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin) -> np.ndarray:
         """The Newton-min active set {weight g <= y} of the coupled iterate of w' (no mixed rows): g = w', y' = y_fixed
         on the fixed rows and, on the eq rows, the multiplier of the slave's equation (x_2 row of the step) as
-        :meth:`~ngcontact.algebra.system.LinearizedStep.recover` reads it -- without forming the coupled iterate."""
+        :meth:`_coupled` reads it."""
         system, m = self.system, self.system.m
         w = w_eq.copy()
         w[ws.keep] = w_free
         y = lin.y_fixed.copy()
         rows = lin.eq_rows
         x2 = (self.s - w) / (1.0 + self.alpha)
-        y[rows] = (S_eq @ x2 - system.F[m:][rows]) / (-system.D[rows])
+        x2[rows] = (self.s[rows] + self.alpha * w[rows]) / (1.0 + self.alpha) + lin.x_aff[lin.slaves]
+        y[rows] = ((self.K22 @ x2)[rows] - system.F[m:][rows]) / -system.D[rows]
         return system.constraint_weight * w <= y
 
     def step(self, k: int, x: np.ndarray, lin, target: float, early) -> Optional[tuple]:
@@ -178,12 +205,11 @@ class MembraneSplit:
             return self._coupled(z, ws, w_eq, lin)
 
         if early is not None:
-            S_eq = self.alpha * self.S[lin.eq_rows]  # the slaves' rows of K (x_2 block)
-            res, stopped = early(ws.A, ws.b, z0, mg, t_w, lambda z: self._active(z, ws, w_eq, lin, S_eq), eq)
+            res, stopped = early(ws.A, ws.b, z0, mg, t_w, lambda z: self._active(z, ws, w_eq, lin), eq)
             self.its += res.iterations
             if stopped:
-                xn, yn = to_full(res.x)
-                return xn, yn, dict(fields, pcg_its=self.its, cg_early=1), None
+                xn, yn, r = to_full(res.x)
+                return xn, yn, dict(fields, pcg_its=self.its, cg_early=1), r
         else:
             res = pcg(ws.A, ws.b, mg, z0, rtol=t_w / bnorm, maxiter=opt.maxiter)
             self.its += res.iterations
@@ -193,8 +219,7 @@ class MembraneSplit:
         for _ in range(4):
             if not res.converged:
                 return None
-            xn, yn = to_full(res.x)
-            r = system.residual(xn, yn)
+            xn, yn, r = to_full(res.x)
             u_scale = float(np.max(np.abs(xn), initial=0.0))
             if float(np.linalg.norm(r)) <= target \
                     and float(np.max(np.abs(r / dA), initial=0.0)) <= opt.accuracy * opt.tol * u_scale:
