@@ -152,6 +152,12 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.bench_contact --out results/bench
 	$(PY) -m benchmarks.bench_estimate --out results/bench
 
+## strip-study: width of the Dirichlet-correction strip (8 / 2 / 1 layers): I_eff and estimation time of
+## uniform P2-P4 runs, time to 1e-5 of the adaptive L-shape P3 sweep entry -> results/estimators/STRIP_LAYERS.md
+.PHONY: strip-study
+strip-study: $(STAMP)
+	NGCONTACT_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.strip_layers results/estimators
+
 ## estimator-study: eta, error, I_eff and every estimator part per level, FEM P1/P2, cold-start
 ## Newton to convergence: test1, test2 (T0..T4), test2_fitted (5 levels), disk and disk_fitted (4 levels)
 ## -> results/estimators/TABLES.md

@@ -383,6 +383,30 @@ def test_dirichlet_lifting_in_a_boundary_strip():
     assert est.eta >= est.err_energy
 
 
+def test_dirichlet_strip_is_two_layers_for_p_at_least_2(monkeypatch):
+    """p >= 2: the Dirichlet lifting lives on a strip of STRIP_LAYERS_HIGH = 2 layers (its trace error oscillates
+    along the edges and the lifting decays within it; results/estimators/STRIP_LAYERS.md): w_h vanishes beyond
+    two layers and reaches into the second, and the estimate stays guaranteed and within 1 % of the one with the
+    P1 strip of 8 layers (test 1, P2, level 2)."""
+    from ngcontact.estimators import dirichlet as E
+
+    assert E.strip_layers(1) == E.STRIP_LAYERS == 8 and E.strip_layers(2) == E.strip_layers(4) == 2
+    scene = load_scene("test1")
+    mesh = list(scene.problem.domain.meshes(3))[-1]
+    disc = FEMDiscretization(scene.problem, mesh, order=2)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    ws = E.dirichlet_lifting(sv.disc, sv.fields, True)[0]
+    two, _ = E.boundary_strip(sv.disc, 2)
+    one, _ = E.boundary_strip(sv.disc, 1)
+    w2 = Integrate(ws[0] ** 2 * dx, mesh, element_wise=True).NumPy()
+    assert (~two).any() and np.abs(w2[~two]).max() == 0.0 and np.abs(w2[two & ~one]).max() > 0.0
+    est = estimate(disc, sol.x, sol.y)
+    monkeypatch.setattr(E, "STRIP_LAYERS_HIGH", 8)
+    wide = estimate(disc, sol.x, sol.y)
+    assert est.eta >= est.err_energy and abs(est.eta / wide.eta - 1.0) <= 0.01
+
+
 def test_contact_fit_reweighting_removes_negative_lobes(solved_scene):
     """L-shape P3 (continuous free boundary): the reweighted contact fit of lam^ has no negative part left
     (eta_nonc,2 at round-off) and a smaller estimate than the plain fit (measured I_eff 1.464 -> 1.387)."""

@@ -3,12 +3,14 @@ r"""Correction of non-polynomial Dirichlet data: the lifting w_h, eta_bc and eps
 u_h interpolates g, so u - u_h is not in H^1_0 for non-polynomial g (test 1, test 2), and without
 a correction test 1 with p = 2 gives I_eff < 1.  w_h in P_{p+2} has the boundary trace Pi g - u_h
 (NGSolve's boundary projection of g), so u~_h = u_h + w_h = g up to O(h^{p+3}); it is discrete
-harmonic in the strip of the elements within ``STRIP_LAYERS`` vertex layers of the Dirichlet
+harmonic in the strip of the elements within :func:`strip_layers` vertex layers of the Dirichlet
 boundary and zero beyond ((grad w_h, grad v) = 0 for v in P_{p+2} vanishing outside the strip and
 on the boundary): any w_h with that trace is admissible, and the strip keeps its two sparse
 Cholesky factorizations small.  For P1 the trace error Pi g - I_1 g is one-signed on every edge and
-its lifting decays slowly, hence several layers; for p >= 2 one layer is as good as the global
-lifting (``tests/test_estimators.py::test_dirichlet_lifting_in_a_boundary_strip``).
+its lifting decays slowly, hence ``STRIP_LAYERS`` layers (``tests/test_estimators.py::
+test_dirichlet_lifting_in_a_boundary_strip``); for p >= 2 it oscillates along the edges and its lifting
+decays within a layer or two: ``STRIP_LAYERS_HIGH`` layers (``python -m ngcontact.studies.strip_layers``,
+``results/estimators/STRIP_LAYERS.md``: I_eff and the estimation time with 8, 2 and 1 layers).
 
 Any divergence-free rho_a in H(div) gives (grad w_ah, grad v) = (grad w_ah + rho_a, grad v) for
 v in H^1_0, so eps_w = (sum_a mu_a ||grad w_ah + rho_a||^2)^{1/2} bounds the coupling term
@@ -32,10 +34,18 @@ from ngsolve import (BND, H1, VOL, BilinearForm, BitArray, CoefficientFunction, 
 from ..domains import DIRICHLET
 from .view import DiscretizationView
 
-__all__ = ["STRIP_LAYERS", "boundary_strip", "dirichlet_correction", "dirichlet_lifting"]
+__all__ = ["STRIP_LAYERS", "STRIP_LAYERS_HIGH", "strip_layers", "boundary_strip", "dirichlet_correction",
+           "dirichlet_lifting"]
 
 #: element layers along the Dirichlet boundary carrying the Dirichlet-data correction (module doc)
 STRIP_LAYERS = 8
+#: ... for FE degree p >= 2 (module doc)
+STRIP_LAYERS_HIGH = 2
+
+
+def strip_layers(p: int) -> int:
+    """The width of the strip of the Dirichlet correction for FE degree ``p`` (module doc)."""
+    return STRIP_LAYERS if p <= 1 else STRIP_LAYERS_HIGH
 
 
 def boundary_strip(dv: DiscretizationView, layers: int):
@@ -82,7 +92,7 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
     k, rt_order : int
         degree of w_h; rho = curl phi with phi in P_{rt_order + 1}.
     layers : int, optional
-        strip width (default ``STRIP_LAYERS``).
+        strip width (default :func:`strip_layers` of the discretization's degree).
 
     Returns
     -------
@@ -109,7 +119,7 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
         ws.append(w if float(np.abs(w.vec.FV().NumPy()).max()) > 1e-13 * scale else None)
     if all(w is None for w in ws):
         return ws, 0.0, 0.0, None
-    strip, halo = boundary_strip(dv, STRIP_LAYERS if layers is None else layers)
+    strip, halo = boundary_strip(dv, strip_layers(dv.order) if layers is None else layers)
     inner = halo.any()
     on_strip = _bitarray(strip)
     dxs = dx(definedonelements=on_strip)
