@@ -143,9 +143,9 @@ class RunOptions:
             bad("newton_stop", f"'residual' with newton {self.newton!r} (the GMRES modes have their own stopping rules)")
         if self.decouple and self.disc != "fem":
             raise ValueError(f"option decouple needs disc 'fem' (got disc {self.disc!r})")
-        if self.decouple and (self.newton != "direct" or self.adaptive):
-            raise ValueError("option decouple needs the direct Newton solves of uniform runs (newton 'direct', "
-                             "not adaptive)")
+        if self.decouple and self.newton != "direct":
+            raise ValueError(f"option decouple needs the direct Newton solves: option newton 'direct' "
+                             f"(got {self.newton!r})")
         # the option groups: each validates its own fields
         set_ = object.__setattr__
         set_(self, "newton_options", NewtonOptions(cfun=self.cfun, tol=self.tol, maxit=self.maxit))

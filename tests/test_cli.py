@@ -65,7 +65,7 @@ def test_user_scene_without_exact_solution(tmp_path):
     (["run", "test1", "--newton", "inexact", "--ilu-fill", "0.5"], "option --ilu-fill must be a number >= 1"),
     (["run", "test1", "--flux-order", "2"], "--flux-order needs --estimate, --adaptive or --newton adaptive"),
     (["run", "test1", "--estimate", "--order", "2", "--flux-order", "4"], "option --flux-order must be p = 2 or p + 1 = 3 (or omitted), got 4"),
-    (["run", "test1", "--decouple", "--adaptive"], "--decouple needs the direct Newton solves of uniform runs"),
+    (["run", "test1", "--decouple", "--newton", "inexact"], "option --decouple needs the direct Newton solves: option --newton 'direct' (got 'inexact')"),
     (["run", "test1", "--estimate", "--flux-order", "q"], "option --flux-order must be p, p+1 or an integer, got 'q'"),
     (["run", "test1", "--adaptive", "--levels", "3"], "option --levels sets the number of uniform levels"),
     (["run", "test1", "--adaptive", "--max-ndof", "-5"], "option --max-ndof must be a positive integer (or omitted)"),

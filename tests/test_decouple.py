@@ -48,3 +48,23 @@ def test_no_split_for_the_obstacle_problem_or_coupled_blocks():
     x0, y0 = np.zeros(coupled.n), np.zeros(m)
     r = decoupled_newton(coupled, x0, y0)
     assert r.converged and np.allclose(r.x, semismooth_newton(coupled, x0, y0).x)
+
+
+def test_adaptive_run_with_decoupled_newton_follows_the_coupled_one():
+    """--adaptive --decouple: every level solved by the w-Newton gives the coupled level's solution, so the estimator
+    marks the same elements and the run refines to the same meshes with the same errors (L-shape P2)."""
+    from ngcontact.drivers import RunOptions, run_scene
+    from ngcontact.scenes import load_scene
+
+    sc = load_scene("lshape")
+    runs = [run_scene(sc, RunOptions(order=2, adaptive=True, max_ndof=6000, decouple=d)) for d in (False, True)]
+    coupled, dec = (r.rows for r in runs)
+    assert len(coupled) == len(dec) >= 4
+    # the w-Newton's systems have at most one unknown per node, the coupled ones more
+    size = [{it["level"]: it["linear_size"] for it in r.iterations if it["k"] > 0} for r in runs]
+    assert all(size[1][lv] < size[0][lv] for lv in size[1])
+    for a, b in zip(coupled, dec):
+        assert a["nelem"] == b["nelem"] and a["active_nodes"] == b["active_nodes"]
+        assert b["newton_converged"] == 1 and b["certified"] == 1
+        assert b["err_energy"] == pytest.approx(a["err_energy"], rel=1e-9)
+        assert b["eta"] == pytest.approx(a["eta"], rel=1e-8)
