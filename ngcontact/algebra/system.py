@@ -374,7 +374,7 @@ class ComplementaritySystem:
         """
         n = self.n
         rc = classify_rows(self.gap(x), y, C, Ca, Cb, eps, self.constraint_weight)
-        eq, fixed, mixed, g_target, y_fixed, w, c0 = rc.eq, rc.fixed, rc.mixed, rc.g_target, rc.y_fixed, rc.w, rc.c0
+        eq, mixed, g_target, y_fixed, w, c0 = rc.eq, rc.mixed, rc.g_target, rc.y_fixed, rc.w, rc.c0
 
         # matrix of the x-equation (before elimination); its right-hand side is formed on first use
         Kaug = self.K

@@ -27,7 +27,7 @@ alpha otherwise), in the exact mode.
 """
 from __future__ import annotations
 
-from typing import Optional, Tuple
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
