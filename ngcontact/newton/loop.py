@@ -107,8 +107,12 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
     def cert_tol(reason):
         return options.certificate_tol if reason == "converged" else stop.certificate_tol(options)
 
+    held = {}  # the certificate certified() computed, with the iterate and reason it belongs to
+
     def result(converged, reason, k):
-        cert = system.certificate(x, y, cert_tol(reason))
+        h = held.get("cert")
+        same = h is not None and h[0] is x and h[1] is y and h[2] == reason
+        cert = h[3] if same else system.certificate(x, y, cert_tol(reason))
         return NewtonResult(x * s, y * s, converged, reason, k, history, estimates, cert, guard.log)
 
     def certified(reason):
@@ -116,9 +120,11 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         (:meth:`~.stopping.BalancedStop.accepted`), which then replaces (x, y); else None (iterate on)."""
         nonlocal x, y
         xa, ya = stop.accepted(x, y) if reason != "converged" else (x, y)
-        if not system.certificate(xa, ya, cert_tol(reason)).valid:
+        cert = system.certificate(xa, ya, cert_tol(reason))
+        if not cert.valid:
             return None
         x, y = xa, ya
+        held["cert"] = (x, y, reason, cert)
         return reason
 
     if history[-1].res <= options.tol and certified("converged"):
