@@ -71,8 +71,9 @@ def _check_run_flags(args, options, scene) -> None:
     if args.no_condense and options.disc != "hho":
         raise UsageError(f"option --no-condense needs --disc hho (got --disc {options.disc})")
     if args.decouple and scene.problem.nfields != 2:
-        raise UsageError(f"option --decouple needs a two-membrane scene ({scene.name} is a "
-                         f"{type(scene.problem).__name__})")
+        kind = type(scene.problem).__name__
+        raise UsageError(f"option --decouple needs a two-membrane scene ({scene.name} is "
+                         f"{'an' if kind[0] in 'AEIOU' else 'a'} {kind})")
     if args.gamma_balance is not None and options.newton_stop != "balanced":
         raise UsageError("option --gamma-balance needs --newton-stop balanced")
     if args.vtk_series and args.no_vtk:
