@@ -255,7 +255,7 @@ class HierarchyCache:
     ``prolongations``: the nested prolongations (empty: :class:`AlgebraicMultigrid`); ``opt``: the multigrid
     settings (``update_fraction``, ``degree``, ``ratio``, ``smoother``).  :meth:`get` takes a step with row
     classes ``eq``, ``mixed``, ``w``, kept unknowns ``keep``, ``size``, the reduced matrix ``A`` and
-    ``share_matrix`` (:class:`~ngcontact.algebra.system.LinearizedStep`)."""
+    ``share_matrix`` (:class:`~ngcontact.algebra.step.LinearizedStep`)."""
 
     def __init__(self, prolongations, opt, solver: str):
         self.prolongations, self.opt, self.solver = tuple(prolongations), opt, solver

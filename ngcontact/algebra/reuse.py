@@ -1,7 +1,7 @@
 """Factorization reuse across Newton steps: PCG preconditioned with an earlier step's factorization.
 
 :class:`FactorReuse` solves the reduced SPD systems A z = b of successive
-:class:`~ngcontact.algebra.system.LinearizedStep` s.  It keeps the last
+:class:`~ngcontact.algebra.step.LinearizedStep` s.  It keeps the last
 factorized step and reuses it for any later step whose system has the same
 matrix K and the same constraint rows (up, lo, D): the steps of one Newton
 run, and equally the steps of systems that share K but differ in F or b
@@ -17,7 +17,8 @@ import numpy as np
 from .linalg import FixedPatternCholesky, SPDSolver, pcg
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .system import ComplementaritySystem, LinearizedStep
+    from .step import LinearizedStep
+    from .system import ComplementaritySystem
 
 __all__ = ["FactorReuse"]
 

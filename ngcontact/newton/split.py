@@ -16,7 +16,7 @@ matrix is a sparse triple product -- is solved as
   hierarchy of one field (the coarse levels reused while few rows change, as for the coupled system),
 
 and the coupled iterate is read off: x_1 = (s' + alpha w') / (1 + alpha), x_2 = (s' - w') / (1 + alpha), its
-kept unknowns mapped through the coupled step's :meth:`~ngcontact.algebra.system.LinearizedStep.recover`
+kept unknowns mapped through the coupled step's :meth:`~ngcontact.algebra.step.LinearizedStep.recover`
 (which sets the slaves and y' as the coupled step does).  The step is the coupled Newton step: the Newton
 loop, its residuals, certificates and relaxation see the coupled system.  It is accepted on the coupled
 step's own tests -- ||F - K x' + B^T D y'|| (the reduced residual ||b - A z||; zero at the slave rows) below
@@ -144,7 +144,7 @@ class MembraneSplit:
 
     def _coupled(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin):
         """(x', y', K x' - B^T D y' - F): the coupled iterate of w' (kept rows ``w_free``, eq rows ``w_eq``) and s'
-        as the coupled step's :meth:`~ngcontact.algebra.system.LinearizedStep.recover` maps its kept unknowns
+        as the coupled step's :meth:`~ngcontact.algebra.step.LinearizedStep.recover` maps its kept unknowns
         (the slaves x_2 = x_1 - g_target on the eq rows, y' on them from the slaves' equations), and its residual
         -- the same numbers, from one product with each diagonal block of K (no rows of K extracted)."""
         system, m, a = self.system, self.system.m, self.alpha
@@ -178,9 +178,8 @@ class MembraneSplit:
         return system.constraint_weight * w <= y
 
     def step(self, k: int, x: np.ndarray, lin, target: float, early) -> Optional[tuple]:
-        """(x', y', fields, residual) of the coupled step ``lin`` at the iterate x (residual: K x' - B^T D y' - F where
-        the acceptance test formed it, else None), or None (the step is to be solved on the coupled system;
-        :attr:`its` counts the CG iterations spent either way).  ``early(A, b, z0, mg, target,
+        """(x', y', fields, K x' - B^T D y' - F) of the coupled step ``lin`` at the iterate x, or None (the step is to
+        be solved on the coupled system; :attr:`its` counts the CG iterations spent either way).  ``early(A, b, z0, mg, target,
         active, eq)``: the session's early-exit CG (or None)."""
         opt, system, m = self.opt, self.system, self.system.m
         self.its = 0
