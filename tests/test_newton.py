@@ -161,19 +161,26 @@ def test_balanced_stop_option_errors_name_the_field():
         RunOptions(gamma_balance=2.0)
 
 
+def _ex9_nested(level: int):
+    """ex9 on levels ``level`` - 1 and ``level`` of its nested meshes: (coarse discretization, its converged Newton
+    result, fine discretization)."""
+    from ngcontact.discretizations.fem import FEMDiscretization
+    from ngcontact.scenes import load_scene
+
+    scene = load_scene("ex9_obstacle")
+    meshes = list(scene.problem.domain.meshes(level + 1))
+    coarse = FEMDiscretization(scene.problem, meshes[level - 1], order=1)
+    sc = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess), NewtonOptions())
+    return coarse, sc, FEMDiscretization(scene.problem, meshes[level], order=1)
+
+
 def test_obstacle_warm_start_sweeps_keep_the_solution_and_help_the_first_step(monkeypatch):
     """Nested start of the ex9 obstacle problem (level 4 from level 3): the projected Jacobi sweeps of
     ComplementaritySystem.warm_start leave the converged solution unchanged (finite termination) and
     misclassify no more rows in the first Newton step than the plain projected start (measured 4 vs 8)."""
     from ngcontact.algebra.system import ComplementaritySystem
-    from ngcontact.discretizations.fem import FEMDiscretization
-    from ngcontact.scenes import load_scene
 
-    scene = load_scene("ex9_obstacle")
-    meshes = list(scene.problem.domain.meshes(5))
-    coarse = FEMDiscretization(scene.problem, meshes[3], order=1)
-    sc = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess), NewtonOptions())
-    fine = FEMDiscretization(scene.problem, meshes[4], order=1)
+    coarse, sc, fine = _ex9_nested(4)
     default = ComplementaritySystem.WARM_SWEEPS
     assert default > 0
     out = {}
@@ -193,14 +200,8 @@ def test_band_solve_covering_everything_is_the_discrete_solution():
     """FreeBoundaryRelaxation.solve_band with a band wider than the mesh solves the whole ex9 obstacle problem
     (level 3) from the interpolated start: the converged Newton solution, and Newton from it stops at once."""
     from ngcontact.algebra.relax import FreeBoundaryRelaxation
-    from ngcontact.discretizations.fem import FEMDiscretization
-    from ngcontact.scenes import load_scene
 
-    scene = load_scene("ex9_obstacle")
-    meshes = list(scene.problem.domain.meshes(4))
-    coarse = FEMDiscretization(scene.problem, meshes[2], order=1)
-    sc = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess), NewtonOptions())
-    fine = FEMDiscretization(scene.problem, meshes[3], order=1)
+    coarse, sc, fine = _ex9_nested(3)
     x0, y0 = fine.prolongate(coarse, sc.x, sc.y)
     ref = semismooth_newton(fine.system, x0, y0, NewtonOptions())
     R = FreeBoundaryRelaxation(fine.system)
@@ -220,14 +221,8 @@ def test_unsettled_band_solve_hands_on_the_next_active_set():
     one step from its result is the iteration's second step (ex9 level 3, band = the whole mesh), chained
     steps reach the discrete solution, and Newton from the one-step result ends at that solution."""
     from ngcontact.algebra.relax import FreeBoundaryRelaxation
-    from ngcontact.discretizations.fem import FEMDiscretization
-    from ngcontact.scenes import load_scene
 
-    scene = load_scene("ex9_obstacle")
-    meshes = list(scene.problem.domain.meshes(4))
-    coarse = FEMDiscretization(scene.problem, meshes[2], order=1)
-    sc = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess), NewtonOptions())
-    fine = FEMDiscretization(scene.problem, meshes[3], order=1)
+    coarse, sc, fine = _ex9_nested(3)
     s = fine.system
     x0, y0 = fine.prolongate(coarse, sc.x, sc.y)
     x0 = x0 + 0.5 * np.median(y0[y0 > 0]) / s.constraint_weight  # part of the contact set let go

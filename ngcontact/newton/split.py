@@ -142,17 +142,24 @@ class MembraneSplit:
         self.s = res.x
         return True
 
+    def _fields(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin):
+        """(x_1', x_2', w'): the membranes of w' (kept rows ``w_free``, eq rows ``w_eq``) and s', the slaves x_2 of the
+        eq rows set from their masters as Z z + x_aff does (x_2 = x_1 - g_target)."""
+        a = self.alpha
+        w = w_eq.copy()
+        w[ws.keep] = w_free
+        x1, x2 = (self.s + a * w) / (1.0 + a), (self.s - w) / (1.0 + a)
+        x2[lin.eq_rows] = x1[lin.eq_rows] + lin.x_aff[lin.slaves]
+        return x1, x2, w
+
     def _coupled(self, w_free: np.ndarray, ws: _WStep, w_eq: np.ndarray, lin):
         """(x', y', K x' - B^T D y' - F): the coupled iterate of w' (kept rows ``w_free``, eq rows ``w_eq``) and s'
         as the coupled step's :meth:`~ngcontact.algebra.step.LinearizedStep.recover` maps its kept unknowns
         (the slaves x_2 = x_1 - g_target on the eq rows, y' on them from the slaves' equations), and its residual
         -- the same numbers, from one product with each diagonal block of K (no rows of K extracted)."""
-        system, m, a = self.system, self.system.m, self.alpha
-        w = w_eq.copy()
-        w[ws.keep] = w_free
-        x1, x2 = (self.s + a * w) / (1.0 + a), (self.s - w) / (1.0 + a)
+        system, m = self.system, self.system.m
+        x1, x2, _ = self._fields(w_free, ws, w_eq, lin)
         rows = lin.eq_rows
-        x2[rows] = x1[rows] + lin.x_aff[lin.slaves]  # Z z + x_aff at the slaves (x_2 of the eq rows)
         K2x = self.K22 @ x2
         y = lin.y_fixed.copy()
         if lin.mixed.any():
@@ -168,12 +175,9 @@ class MembraneSplit:
         on the fixed rows and, on the eq rows, the multiplier of the slave's equation (x_2 row of the step) as
         :meth:`_coupled` reads it."""
         system, m = self.system, self.system.m
-        w = w_eq.copy()
-        w[ws.keep] = w_free
+        _, x2, w = self._fields(w_free, ws, w_eq, lin)
         y = lin.y_fixed.copy()
         rows = lin.eq_rows
-        x2 = (self.s - w) / (1.0 + self.alpha)
-        x2[rows] = (self.s[rows] + self.alpha * w[rows]) / (1.0 + self.alpha) + lin.x_aff[lin.slaves]
         y[rows] = ((self.K22 @ x2)[rows] - system.F[m:][rows]) / -system.D[rows]
         return system.constraint_weight * w <= y
 
