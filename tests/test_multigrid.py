@@ -44,6 +44,20 @@ def test_prolongation_is_the_coarse_interpolant(ex9_levels):
     assert np.abs(P @ xc - ref).max() <= 1e-13 * np.abs(xc).max()
 
 
+
+def test_p1_prolongation_rows_by_hand():
+    """Parents (a, b) of every fine node: weight 1/2 on each interior coarse parent, 1 on a repeated one (the
+    node is a coarse vertex), nothing on boundary parents; canonical CSR (sorted columns, no duplicates)."""
+    from ngcontact.algebra.multigrid import p1_prolongation
+
+    # coarse nodes 0..5, interior 1, 2, 4 -> unknowns 0, 1, 2; fine nodes 0..6, interior 0, 2..6
+    parents = np.array([[4, 2], [0, 3], [1, 1], [2, 1], [0, 4], [3, 5], [4, 4]])
+    P = p1_prolongation(parents, np.array([0, 2, 3, 4, 5, 6]), np.array([1, 2, 4]), 6)
+    ref = np.array([[0, 0.5, 0.5], [1, 0, 0], [0.5, 0.5, 0], [0, 0, 0.5], [0, 0, 0], [0, 0, 1]])
+    assert P.shape == ref.shape and np.array_equal(P.toarray(), ref)
+    assert P.has_canonical_format and P.nnz == np.count_nonzero(ref)
+
+
 def _solve(A, b, mg):
     res = pcg(A, b, mg, rtol=1e-10, maxiter=100)
     assert res.converged
@@ -179,6 +193,32 @@ def test_algebraic_multigrid_without_a_nested_hierarchy():
             assert b["mg_algebraic"] == 1 and b["cg_its"] > 0
     with pytest.raises(ValueError, match="option smoother"):
         MultigridSolve(smoother="jacobi")
+
+
+
+def test_early_exit_checks_no_iterate_that_meets_the_target(ex9_levels):
+    """The early exit's active-set check (a recover and a gap per call) runs only at iterates still above the
+    step's target: CG stops at one that meets it anyway, whatever its active set (here every iterate, nu = 1)."""
+    from types import SimpleNamespace
+
+    from ngcontact.newton.multigrid import MultigridSolve, _MultigridSession
+
+    disc = ex9_levels[-1]
+    K, F = disc.system.K, disc.system.F
+    mg = Multigrid(K, disc.mg_prolongations)
+    target = 1e-9 * np.linalg.norm(F)
+    checked = []
+
+    def active(z):
+        checked.append(float(np.linalg.norm(F - K @ z)))
+        return eq
+
+    eq = np.zeros(len(F), dtype=bool)
+    session = SimpleNamespace(opt=MultigridSolve(early_every=1, early_reduction=0.5))
+    res, early = _MultigridSession._early_exit(session, K, F, np.zeros(len(F)), mg, target, active, eq)
+    assert res.converged and not early
+    assert np.linalg.norm(F - K @ res.x) <= target
+    assert len(checked) == res.iterations - 1 and min(checked) > target  # iterations 1..its-1 (not 0, not the last)
 
 
 def test_cg_monitor_sees_true_residuals_and_can_stop():

@@ -54,16 +54,22 @@ def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_inter
     repeated index: v is that coarse node); ``*_interior``: node numbers of the unknowns.  Coarse
     boundary nodes carry homogeneous corrections and are left out.
     """
-    ci = -np.ones(n_coarse_nodes, dtype=np.int64)
-    ci[coarse_interior] = np.arange(len(coarse_interior))
+    nc = len(coarse_interior)
+    itype = np.int32 if max(nc, 2 * len(fine_interior)) < np.iinfo(np.int32).max else np.int64
+    ci = np.full(n_coarse_nodes, -1, dtype=itype)
+    ci[coarse_interior] = np.arange(nc, dtype=itype)
     nf = len(fine_interior)
     a, b = ci[parents[fine_interior, 0]], ci[parents[fine_interior, 1]]
-    rows = np.concatenate([np.arange(nf), np.arange(nf)])
-    cols = np.concatenate([a, b])
-    ok = cols >= 0
-    P = sp.csr_matrix((np.full(2 * nf, 0.5)[ok], (rows[ok], cols[ok])), shape=(nf, len(coarse_interior)))
-    P.sum_duplicates()  # a repeated parent: weight 1
-    return P
+    # CSR directly, columns increasing within a row: lo (weight 1 for a repeated parent, else 1/2), then hi
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    same = lo == hi
+    first, second = lo >= 0, (hi >= 0) & ~same  # coarse boundary parents carry no entry
+    keep = np.stack([first, second], axis=1).ravel()
+    cols = np.stack([lo, hi], axis=1).ravel()[keep]
+    data = np.stack([np.where(same, 1.0, 0.5), np.full(nf, 0.5)], axis=1).ravel()[keep]
+    indptr = np.zeros(nf + 1, dtype=itype)
+    np.cumsum(first.astype(itype) + second, out=indptr[1:])
+    return sp.csr_matrix((data, cols, indptr), shape=(nf, nc))
 
 
 def _truncated(P: sp.csr_matrix, rows) -> "tuple[sp.csr_matrix, np.ndarray]":

@@ -244,7 +244,8 @@ class _MultigridSession:
         stop = {}
 
         def monitor(st):
-            if st.i == 0 or st.res * bnorm > opt.early_reduction * r0:
+            # no check before the residual dropped, nor at an iterate that meets the target (CG stops there anyway)
+            if st.i == 0 or st.res * bnorm > opt.early_reduction * r0 or st.res * bnorm <= target:
                 return False
             if np.array_equal(active(st.x), eq):
                 return False
