@@ -296,12 +296,14 @@ class PatchSolver:
     def _patch_matrices(self, G, sl) -> np.ndarray:
         """The condensed matrices S_a (+ the null-mode term) of the patches ``sl`` of group G."""
         pairs, loc, m = G["pairs"][sl], G["loc"][sl], G["m"]
-        npch, n = pairs.shape
-        rows = np.arange(npch)[:, None, None]
-        S = np.zeros((npch, m, m))
-        flatS = S.reshape(-1)
-        for j in range(n):  # within one element slot the indices are distinct: plain += is exact
-            flatS[(rows * m + loc[:, j, :, None]) * m + loc[:, j, None, :]] += self.S_K[self.pair_K[pairs[:, j]]]
+        npch = len(pairs)
+        # flat index of every entry of every element block in its patch matrix (np, n, nF3, nF3); one bincount
+        # sums them, element slot by element slot in each entry (the order of a loop over the slots)
+        lm = loc.astype(np.int64)
+        idx = lm[:, :, :, None] * m + lm[:, :, None, :]
+        idx += (np.arange(npch, dtype=np.int64) * (m * m))[:, None, None, None]
+        S = np.bincount(idx.ravel(), weights=self.S_K[self.pair_K[pairs]].ravel(),
+                        minlength=npch * m * m).reshape(npch, m, m)
         fixed = G["fixed"][sl]
         S[fixed] = 0.0
         S.transpose(0, 2, 1)[fixed] = 0.0
