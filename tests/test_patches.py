@@ -35,6 +35,30 @@ def test_batched_equals_patchwise_solve(scene, p, level):
     assert max(normal_jump(new).values()) <= 1e-12
 
 
+
+@pytest.mark.parametrize("scene,p,level", [("test1", 2, 1), ("disk", 1, 1), ("lshape", 3, 0)])
+def test_opposite_edges_are_eliminated_per_element(scene, p, level, monkeypatch):
+    """The facet dofs of the edge opposite to the patch vertex are eliminated per element (straight meshes with
+    the element blocks from reference matrices, and the curved disk with the assembled ones): the patch systems
+    hold the 2(q + 1) dofs per element of the edges at the vertex, and the fluxes are those of the patch systems
+    with every facet dof of the patch (the elimination switched off) to round-off."""
+    import ngcontact.estimators.patches as patches
+
+    disc, sol = _solved(scene, p, level)
+    q = p  # flux order p
+    S = patch_solver(DiscretizationView.of(disc), q)
+    assert S.nE == 2 * (q + 1) and S._O.shape[2] == q + 1
+    assert S._fixed_O.any() and not S._fixed_O.all()  # Dirichlet opposite edges: m = 0 there, nothing to solve
+    with_elimination = reconstruct_fluxes(disc, sol.x, sol.y)
+    monkeypatch.setattr(patches, "_opposite_vertices", lambda *a, **k: None)
+    DiscretizationView.of(disc).cache.pop(("patch_solver", q))
+    assert patch_solver(DiscretizationView.of(disc), q).nE == 3 * (q + 1)
+    without = reconstruct_fluxes(disc, sol.x, sol.y)
+    for a, b in zip(with_elimination.sigma, without.sigma):
+        diff = sqrt(Integrate((a - b) ** 2 * dx, disc.mesh))
+        assert diff <= 1e-12 * sqrt(Integrate(b ** 2 * dx, disc.mesh)), diff
+
+
 def test_batched_solver_is_cached_and_exact_on_curved_meshes():
     """One solver per discretization and RT degree; on curved elements (disk_fitted P2) the eps -> 0 limit
     keeps the normal jumps at round-off (PatchwiseSolve with eps = 1e-10: ~1e-9)."""

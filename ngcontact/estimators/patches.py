@@ -13,9 +13,12 @@ right-hand side term multiplied by the hat function psi_a of the patch), compute
 3. the right-hand side of patch a on K is the element vector of the linear form with psi_a, i.e.
    with the barycentric coordinate of the local vertex of K that is a: three assemblies (one per
    local vertex) give all of them; they are condensed like the matrix;
-4. patch a solves sum_{K in T_a} S_K m = sum_K g_K^a on the free facet dofs of its elements (the
-   facet dofs of the Dirichlet boundary are not free, as in PatchwiseSolve), batched over patches
-   of equal size with ``numpy.linalg.solve``;
+4. in patch a the edge of K opposite to a lies on the patch boundary, so its facet dofs belong to K
+   alone there: they are eliminated per (element, local vertex) as well (:meth:`PatchSolver._condense`),
+   and patch a solves sum_{K in T_a} S'_K m = sum_K g'_K^a on the free facet dofs of the edges at a
+   (2(q + 1) per element instead of 3(q + 1); the facet dofs of the Dirichlet boundary are not free,
+   as in PatchwiseSolve), batched over patches of equal size with ``numpy.linalg.solve``; the
+   eliminated dofs are recovered per element;
 5. sigma = sum_a sigma^a is recovered per element at once, by linearity:
    x_I = A_II^{-1} (sum_a b_K^a - A_IF sum_a m_K^a).
 
@@ -35,8 +38,8 @@ per load object (:meth:`PatchSolver.fixed_vectors`).
 Cost: ``PatchwiseSolve`` (NGSolve 6.2) loops over the vertices on one thread, recomputes the
 element matrices of every patch (three times per element) and inverts the full patch matrix
 (~90 unknowns for q = 1, 220 for q = 2): ~30 us per vertex and field for q = 1.  Here the
-factorizations are of element size, the patch systems have only the facet unknowns (~24 for
-q = 1), and the structure (element blocks, condensation, patch numbering) is built once per
+factorizations are of element size, the patch systems have only the facet unknowns of the edges at
+the vertex (~12 for q = 1, ~24 for q = 3), and the structure (element blocks, condensation, patch numbering) is built once per
 mesh and reused for every field and every Newton iterate (:func:`.flux.patch_solver`).
 Interior patches (no Dirichlet facet) are singular: (r, m) = (1, 1) solves the homogeneous
 problem, and the condensed matrix is singular to round-off whatever tiny eps (r, w) is added
@@ -45,15 +48,16 @@ the regularized problem that ``PatchwiseSolve`` solves: the eps-term turns an in
 d_a of the patch data (the w-right-hand side tested with w = 1; zero up to quadrature on
 straight meshes, the vertex-rule error on curved ones) into the constant source -d_a/|omega_a|
 on the patch, and this constant is added to the data explicitly; the condensed system is then
-compatible and solved with S + z z^T (z the facet vector of the constant 1), whose solution
-satisfies S m = g and z^T m = 0.  The element blocks are factorized with eps = 0 (the
+compatible and solved with S + z z^T (z the facet vector of the constant 1 on the dofs at the
+vertex), whose solution satisfies S m = g and z^T m = 0 (another normalization of the null mode
+than PatchwiseSolve's: the same flux, the P_q part differs by a constant).  The element blocks are factorized with eps = 0 (the
 divergence of broken RT_q onto P_q(K) makes them invertible).
 """
 from __future__ import annotations
 
 import numpy as np
-from ngsolve import (H1, BilinearForm, CoefficientFunction, Discontinuous, GridFunction, LinearForm, TaskManager,
-                     VOL, ElementId, dx)
+from ngsolve import (EDGE, H1, VOL, BilinearForm, CoefficientFunction, Discontinuous, ElementId, GridFunction,
+                     LinearForm, NodeId, TaskManager, dx)
 
 __all__ = ["PatchSolver", "local_hats"]
 
@@ -76,6 +80,35 @@ def _scatter_add(shape, flat_index, values) -> np.ndarray:
     """Dense array of ``shape`` with values summed into the flat indices (np.add.at, by bincount)."""
     n = int(np.prod(shape))
     return np.bincount(flat_index.ravel(), weights=values.ravel(), minlength=n).reshape(shape)
+
+
+def _opposite_vertices(mesh, F, ev, k: int, sample: int = 8):
+    """opp (3,): the local vertex of a triangle opposite to its local edge j, where the facet space ``F`` numbers
+    the dofs of an element in local order edge by edge (local edge j: columns j k .. j k + k - 1, the dofs of
+    that edge), as checked on the first ``sample`` elements against the mesh's edges and the element vertices
+    ``ev``; else None."""
+    opp = None
+    for K in range(min(sample, mesh.ne)):
+        el = ElementId(VOL, K)
+        dofs = np.asarray(F.GetDofNrs(el), dtype=np.int64)
+        edges = [e.nr for e in mesh[el].edges]
+        if len(dofs) != 3 * k or len(edges) != 3:
+            return None
+        row = []
+        for j, e in enumerate(edges):
+            node = NodeId(EDGE, e)
+            if not np.array_equal(np.asarray(F.GetDofNrs(node), dtype=np.int64), dofs[j * k:(j + 1) * k]):
+                return None
+            ends = {v.nr for v in mesh[node].vertices}
+            out = [i for i in range(3) if int(ev[K, i]) not in ends]
+            if len(out) != 1:
+                return None
+            row.append(out[0])
+        if opp is None:
+            opp = np.array(row)
+        elif not np.array_equal(opp, row):
+            return None
+    return opp if opp is not None and sorted(opp) == [0, 1, 2] else None
 
 
 def _assembled_blocks(X, bf, ne: int, nV: int, nQ: int):
@@ -173,8 +206,11 @@ class PatchSolver:
         nv = int(mesh.nv)
         count = np.bincount(pair_a, minlength=nv)
         start = np.concatenate([[0], np.cumsum(count)])
-        # patch-local numbering of the facet dofs
-        fd = fdofs[self.pair_K]                                    # (npair, nF3)
+        # the facet dofs of K at its local vertex i (E) and on the opposite edge (O, condensed per element)
+        self._condense(mesh, F, fdofs - offF, ev, S_K, ~free[fdofs], local_order=blocks is not None)
+        fixed_O = self._fixed_O[self.pair_K, self.pair_i]          # (npair,) Dirichlet opposite edge
+        # patch-local numbering of the facet dofs at the vertex
+        fd = np.take_along_axis(fdofs[self.pair_K], self._E[self.pair_K, self.pair_i], axis=1)  # (npair, nE)
         key = pair_a[:, None].astype(np.int64) * X.ndof + fd
         uniq, inv = np.unique(key.ravel(), return_inverse=True)
         upatch = uniq // X.ndof
@@ -191,10 +227,9 @@ class PatchSolver:
             gdof = np.zeros((len(verts), m), dtype=np.int64)
             gdof[np.arange(len(verts))[:, None, None], loc] = fd[pairs]
             fixed = ~free[gdof]                                    # Dirichlet facets: m = 0 there
-            interior = ~fixed.any(axis=1)                          # null mode (r, m) = (1, 1)
+            interior = ~fixed.any(axis=1) & ~fixed_O[pairs].any(axis=1)  # null mode (r, m) = (1, 1)
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
-        self.S_K = S_K
         self.A_II_inv = None  # formed with the patch inverses
         self._ops = {}
         self._fixed = {}
@@ -204,8 +239,88 @@ class PatchSolver:
         self._calls = 0
         self._inverse_from = 3  # the call of solve() that forms the inverses (expect_repeats: the first)
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
+        self.nE = self._E.shape[2]
         self._keep_inverses = nbytes <= self.CACHE_BYTES
         self.hats = local_hats(mesh)  # local-vertex hat functions (barycentric coordinates of K)
+
+    def _condense(self, mesh, F, fd, ev, S_K, fixed, local_order: bool) -> None:
+        """Element-level elimination of the facet dofs of K on the edge opposite to its local vertex i.
+
+        In the patch of vertex a the edge of K opposite to a lies on the patch boundary: its facet dofs belong to
+        K alone there, so they are eliminated per (K, i) before the patch matrices are summed:
+        S' = S_EE - S_EO S_OO^-1 S_OE, g' = g_E - S_EO S_OO^-1 g_O, and after the patch solve
+        m_O = S_OO^-1 (g_O - S_OE m_E).  S_OO is positive definite: the only null vector of S_K, the facet
+        vector of the constant 1, does not vanish on E.  A Dirichlet opposite edge has m_O = 0 (S' = S_EE).
+        The patch systems keep the facet dofs of the edges at their vertex only: 2(q + 1) per element instead
+        of 3(q + 1), an eighth of the LU work.  (The null mode of an interior patch is then normalized on
+        those dofs; it changes the P_q part of the patch solution by a constant, not the flux.)
+
+        ``fd``: facet dofs of K (numbering of F; in K's local order if ``local_order``, else sorted), ``fixed``:
+        which of them are Dirichlet.  Sets ``_E`` (ne, 3, nE)
+        and ``_O`` (ne, 3, nO), the columns of K's facet dofs at / opposite to local vertex i, ``_fixed_O``
+        (ne, 3), ``S_pair`` (ne, 3, nE, nE) and the hat-major arrays of :meth:`solve`.  Where the layout of the
+        facet dofs is not the one :func:`_opposite_vertices` checks, or an opposite edge is partly fixed, nothing
+        is eliminated (E: all columns, nO = 0)."""
+        ne, nF3 = fd.shape
+        k = nF3 // 3
+        E = O = fixed_O = None
+        opp = _opposite_vertices(mesh, F, ev, k) if nF3 == 3 * k and ne else None
+        if opp is not None:
+            if local_order:  # column c of K lies on local edge c // k
+                edge = np.broadcast_to(np.arange(nF3) // k, (ne, nF3))
+            else:  # columns sorted by number: their positions among K's dofs in local order
+                loc = np.array([F.GetDofNrs(ElementId(VOL, e)) for e in range(ne)], dtype=np.int64)
+                pos = np.argsort(loc, axis=1, kind="stable")
+                edge = pos // k if np.array_equal(np.take_along_axis(loc, pos, axis=1), fd) else None
+            if edge is not None:
+                at = opp[edge][:, :, None] != np.arange(3)                      # (ne, nF3, 3): on an edge at i
+                cols = np.argsort(~at.transpose(0, 2, 1), axis=2, kind="stable")  # (ne, 3, nF3): E first
+                E, O = cols[:, :, :2 * k], cols[:, :, 2 * k:]
+                fo = np.take_along_axis(np.broadcast_to(fixed[:, None, :], (ne, 3, nF3)), O, axis=2)
+                fixed_O = fo.all(axis=2)
+                if not np.array_equal(fixed_O, fo.any(axis=2)):
+                    E = None
+        if E is None:  # no elimination
+            E = np.broadcast_to(np.arange(nF3), (ne, 3, nF3)).copy()
+            O = np.zeros((ne, 3, 0), dtype=E.dtype)
+            fixed_O = np.zeros((ne, 3), dtype=bool)
+        rows_E = np.take_along_axis(S_K[:, None], E[:, :, :, None], axis=2)     # (ne, 3, nE, nF3)
+        rows_O = np.take_along_axis(S_K[:, None], O[:, :, :, None], axis=2)     # (ne, 3, nO, nF3)
+        S_EE = np.take_along_axis(rows_E, E[:, :, None, :], axis=3)
+        S_EO = np.take_along_axis(rows_E, O[:, :, None, :], axis=3)
+        S_OE = np.take_along_axis(rows_O, E[:, :, None, :], axis=3)
+        S_OO = np.take_along_axis(rows_O, O[:, :, None, :], axis=3)
+        nO = O.shape[2]
+        S_OO[fixed_O] = np.eye(nO)
+        S_OO_inv = np.linalg.inv(S_OO) if nO else S_OO
+        S_OO_inv[fixed_O] = 0.0
+        C = S_EO @ S_OO_inv                                                     # (ne, 3, nE, nO)
+        self._E, self._O, self._fixed_O = E, O, fixed_O
+        self.S_pair = S_EE - C @ S_OE if nO else S_EE
+        # hat-major (3, ne, ...) for the right-hand sides (nf, 3, ne, nF3) of solve()
+        self._Et, self._Ot = E.transpose(1, 0, 2).copy(), O.transpose(1, 0, 2).copy()
+        self._Ct = C.transpose(1, 0, 2, 3).copy()
+        self._S_OE_t, self._S_OO_inv_t = S_OE.transpose(1, 0, 2, 3).copy(), S_OO_inv.transpose(1, 0, 2, 3).copy()
+        base = (np.arange(ne) * nF3)[:, None]
+        self._flat_E = [(base + E[:, i]).ravel() for i in range(3)]
+        self._flat_O = [(base + O[:, i]).ravel() for i in range(3)]
+
+    def _facet_sums(self, mE: np.ndarray, gO: np.ndarray) -> np.ndarray:
+        """msum (nf, ne, nF3): sum over the three vertex patches of K of the patch solutions on K's facet dofs,
+        from the solutions mE (nf, 3, ne, nE) at the vertex and the eliminated right-hand sides gO (nf, 3, ne, nO)
+        (:meth:`_condense`)."""
+        nf = mE.shape[0]
+        ne, nF3 = self.mesh.ne, self.nF3
+        msum = np.zeros((nf, ne * nF3))
+        nO = gO.shape[3]
+        if nO:
+            mO = np.einsum("ikop,fikp->fiko", self._S_OO_inv_t,
+                           gO - np.einsum("ikoe,fike->fiko", self._S_OE_t, mE))
+        for i in range(3):  # the columns of one local vertex are distinct: plain += is exact
+            msum[:, self._flat_E[i]] += mE[:, i].reshape(nf, -1)
+            if nO:
+                msum[:, self._flat_O[i]] += mO[:, i].reshape(nf, -1)
+        return msum.reshape(nf, ne, nF3)
 
     #: patches per batched solve (bounded work arrays: the first touch of fresh memory costs as
     #: much as the arithmetic here)
@@ -297,12 +412,12 @@ class PatchSolver:
         """The condensed matrices S_a (+ the null-mode term) of the patches ``sl`` of group G."""
         pairs, loc, m = G["pairs"][sl], G["loc"][sl], G["m"]
         npch = len(pairs)
-        # flat index of every entry of every element block in its patch matrix (np, n, nF3, nF3); one bincount
+        # flat index of every entry of every element block in its patch matrix (np, n, nE, nE); one bincount
         # sums them, element slot by element slot in each entry (the order of a loop over the slots)
         lm = loc.astype(np.int64)
         idx = lm[:, :, :, None] * m + lm[:, :, None, :]
         idx += (np.arange(npch, dtype=np.int64) * (m * m))[:, None, None, None]
-        S = np.bincount(idx.ravel(), weights=self.S_K[self.pair_K[pairs]].ravel(),
+        S = np.bincount(idx.ravel(), weights=self.S_pair[self.pair_K[pairs], self.pair_i[pairs]].ravel(),
                         minlength=npch * m * m).reshape(npch, m, m)
         fixed = G["fixed"][sl]
         S[fixed] = 0.0
@@ -399,17 +514,23 @@ class PatchSolver:
             b[:, :, :, nV:] += kappa.T.reshape(nf, 3, ne)[:, :, :, None] * self.mass_Q[None, None]
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
         g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
+        # the opposite edges eliminated per element (_condense): right-hand sides of the patch unknowns
+        gE = np.take_along_axis(g, self._Et[None], axis=3)                          # (nf, 3, ne, nE)
+        gO = np.take_along_axis(g, self._Ot[None], axis=3)                          # (nf, 3, ne, nO)
+        if gO.shape[3]:
+            gE -= np.einsum("ikeo,fiko->fike", self._Ct, gO)
         ops = self._patch_operators()
         if ops is None and self._keep_inverses and self._calls >= self._inverse_from:
             self._form_inverses()
             ops = self._patch_operators()
-        if ops is not None:  # every patch inverse is kept: scatter, inverses and gather as three sparse products
-            E, S_inv, Gt = ops
+        if ops is not None:  # every patch inverse is kept: scatter and inverses as two sparse products, a gather
+            E, S_inv, unknown = ops
             # one right-hand side at a time: scipy's product with several vectors is slower than as many
             # products with one (S_inv, the largest, is read once per vector either way)
-            msum = np.stack([Gt @ (S_inv @ (E @ gf)) for gf in g.reshape(nf, -1)]).reshape(nf, ne, nF3)
+            mE = np.stack([(S_inv @ (E @ gf))[unknown] for gf in gE.reshape(nf, -1)]).reshape(gE.shape)
         else:
-            msum = self._patch_loop(g, nf)
+            mE = self._patch_loop(gE, nf)
+        msum = self._facet_sums(mE, gO)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
         if self.A_II_inv is None and self._calls >= self._inverse_from:
             self.A_II_inv = np.linalg.inv(self.A_II)
@@ -447,10 +568,9 @@ class PatchSolver:
         return self._compat
 
     def _patch_loop(self, g, nf: int) -> np.ndarray:
-        """msum (nf, ne, nF3): the patch solutions for the condensed right-hand sides g (nf, 3, ne, nF3), summed
-        on the facet dofs of every element, group by group and chunk by chunk."""
-        ne, nF3 = self.mesh.ne, self.nF3
-        msum = np.zeros((nf, ne * nF3))
+        """mE (nf, 3, ne, nE): the patch solutions for the right-hand sides g (nf, 3, ne, nE) of the patch unknowns,
+        on the facet dofs at the vertex of every (hat i, element K) pair, group by group and chunk by chunk."""
+        mE = np.zeros(g.shape)
         for gi, G in enumerate(self.groups):
             m = G["m"]
             for c0 in range(0, len(G["pairs"]), self.CHUNK):
@@ -462,24 +582,59 @@ class PatchSolver:
                 rhs = np.stack([_scatter_add((npch, m), idx, g[f, i, K]) for f in range(nf)], axis=2)
                 rhs[G["fixed"][sl]] = 0.0
                 sol = self._patch_solve(gi, G, sl, rhs)                            # (np, m, nf)
-                vals = np.take_along_axis(sol[:, None, :, :], loc[:, :, :, None], axis=2)  # (np, n, nF3, nf)
-                flat = (K[:, :, None] * nF3 + np.arange(nF3)).ravel()
-                for f in range(nf):
-                    msum[f] += np.bincount(flat, weights=vals[..., f].ravel(), minlength=ne * nF3)
-        return msum.reshape(nf, ne, nF3)
+                vals = np.take_along_axis(sol[:, None, :, :], loc[:, :, :, None], axis=2)  # (np, n, nE, nf)
+                mE[:, i, K] = np.moveaxis(vals, 3, 0)   # every (i, K) pair lies in one patch
+        return mE
 
     def _patch_operators(self):
-        """(E, S_inv, Gt) once every patch inverse is kept (else None): E scatters the condensed right-hand sides
-        (3 ne nF3, hat-major) into the stacked patch unknowns (not into the fixed ones: their right-hand side is
-        zero), S_inv is block diagonal with the patch inverses, Gt gathers the patch solutions onto the facet dofs
-        of the elements (ne nF3), summing over the patches; msum = Gt S_inv E g is what :meth:`_patch_loop`
-        computes.  Built once, as CSR arrays directly: every (hat, element, facet dof) is one patch unknown, so
-        E has at most one entry per column, Gt three per row (one per vertex patch of the element), S_inv m per
-        row of a patch of m unknowns (canonical CSR: sorted indices, no duplicates)."""
+        """(E, S_inv, unknown) once every patch inverse is kept (else None): E scatters the right-hand sides of the
+        patch unknowns (3 ne nE, hat-major: the facet dofs at the vertex of every (hat, element) pair) into the
+        stacked patch unknowns (not into the fixed ones: their right-hand side is zero), S_inv is block diagonal
+        with the patch inverses, ``unknown`` the patch unknown of every (hat, element, dof at the vertex); the
+        solutions ``(S_inv @ (E @ g))[unknown]`` are what :meth:`_patch_loop` computes.  Built once, as CSR arrays
+        directly: every (hat, element, dof at the vertex) is one patch unknown, so E has at most one entry per
+        column, S_inv m per row of a patch of m unknowns (canonical CSR: sorted indices, no duplicates)."""
         from scipy.sparse import csc_matrix, csr_matrix
 
         if self._patch_ops is not None:
             return self._patch_ops
+        keys = [(gi, c0) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
+        if not self._keep_inverses or any(k not in self._inv_cache for k in keys):
+            return None
+        ne, nE = self.mesh.ne, self.nE
+        n_in = 3 * ne * nE
+        chunks = [(gi, c0, G) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
+        sizes = [len(G["pairs"][c0:c0 + self.CHUNK]) * G["m"] for _, c0, G in chunks]
+        base, nnz = int(sum(sizes)), int(sum(n * G["m"] for n, (_, _, G) in zip(sizes, chunks)))
+        itype = np.int32 if max(base, nnz, n_in) < np.iinfo(np.int32).max else np.int64
+        unknown = np.full(n_in, -1, dtype=itype)  # patch unknown of (hat i, element K, dof e at the vertex)
+        free = np.zeros(n_in, dtype=bool)
+        data, cols = np.empty(nnz), np.empty(nnz, dtype=itype)  # S_inv, filled chunk by chunk
+        indptr = np.empty(base + 1, dtype=itype)
+        indptr[0] = 0
+        start = at = 0
+        for (gi, c0, G), size in zip(chunks, sizes):
+            m, sl = G["m"], slice(c0, c0 + self.CHUNK)
+            pairs, loc = G["pairs"][sl], G["loc"][sl]                              # (np, n), (np, n, nE)
+            npch = len(pairs)
+            K, i = self.pair_K[pairs], self.pair_i[pairs]
+            col = ((i[:, :, None] * ne + K[:, :, None]) * nE + np.arange(nE)).ravel()
+            unknown[col] = (start + np.arange(npch)[:, None, None] * m + loc).ravel()
+            free[col] = ~np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1).ravel()
+            # row j of patch p: row j of its inverse at the patch's columns
+            data[at:at + size * m] = self._inv_cache[(gi, c0)].ravel()
+            cols[at:at + size * m].reshape(npch, m, m)[...] = (start + np.arange(npch)[:, None, None] * m
+                                                                + np.arange(m)[None, None, :])
+            indptr[start + 1:start + size + 1] = at + m * np.arange(1, size + 1)
+            start, at = start + size, at + size * m
+        if unknown.min() < 0:  # pragma: no cover - every (hat, element) pair lies in one patch
+            raise RuntimeError("a (hat, element) pair outside the vertex patches")
+        # E: column (i, K, e) -> its patch unknown, if that one is free
+        E = csc_matrix((np.ones(int(free.sum())), unknown[free], np.concatenate([[0], np.cumsum(free)]).astype(itype)),
+                       shape=(base, n_in)).tocsr()
+        S_inv = csr_matrix((data, cols, indptr), shape=(base, base))
+        self._patch_ops = (E, S_inv, unknown)
+        return self._patch_ops
         keys = [(gi, c0) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
         if not self._keep_inverses or any(k not in self._inv_cache for k in keys):
             return None
