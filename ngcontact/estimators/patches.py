@@ -284,12 +284,15 @@ class PatchSolver:
             E = np.broadcast_to(np.arange(nF3), (ne, 3, nF3)).copy()
             O = np.zeros((ne, 3, 0), dtype=E.dtype)
             fixed_O = np.zeros((ne, 3), dtype=bool)
-        rows_E = np.take_along_axis(S_K[:, None], E[:, :, :, None], axis=2)     # (ne, 3, nE, nF3)
-        rows_O = np.take_along_axis(S_K[:, None], O[:, :, :, None], axis=2)     # (ne, 3, nO, nF3)
-        S_EE = np.take_along_axis(rows_E, E[:, :, None, :], axis=3)
-        S_EO = np.take_along_axis(rows_E, O[:, :, None, :], axis=3)
-        S_OE = np.take_along_axis(rows_O, E[:, :, None, :], axis=3)
-        S_OO = np.take_along_axis(rows_O, O[:, :, None, :], axis=3)
+        same = bool(np.all(E == E[:1])) and bool(np.all(O == O[:1]))  # one column pattern (local order)
+
+        def block(R, C):  # (ne, 3, len R, len C): S_K[K][R[K, i]][:, C[K, i]]
+            if same:
+                return np.stack([S_K[:, R[0, i][:, None], C[0, i][None, :]] for i in range(3)], axis=1)
+            return np.take_along_axis(np.take_along_axis(S_K[:, None], R[:, :, :, None], axis=2), C[:, :, None, :],
+                                      axis=3)
+
+        S_EE, S_EO, S_OE, S_OO = block(E, E), block(E, O), block(O, E), block(O, O)
         nO = O.shape[2]
         S_OO[fixed_O] = np.eye(nO)
         S_OO_inv = np.linalg.inv(S_OO) if nO else S_OO
