@@ -111,6 +111,17 @@ def _opposite_vertices(mesh, F, ev, k: int, sample: int = 8):
     return opp if opp is not None and sorted(opp) == [0, 1, 2] else None
 
 
+def _pair_blocks(M: np.ndarray, pair: np.ndarray, cols: np.ndarray, nr: int, nc: int):
+    """Sparse matrix with the dense blocks M[p] (np, nr, ncol) at rows p nr .. p nr + nr - 1 and columns
+    pair[p] nc + cols[p] (cols (np, nr, ncol): the column of every entry within the block row of pair[p])."""
+    from scipy.sparse import csr_matrix
+
+    npair = len(pair)
+    rows = np.repeat(np.arange(npair * nr), M.shape[2])
+    c = (pair[:, None, None] * nc + cols).ravel()
+    return csr_matrix((M.ravel(), (rows, c)), shape=(npair * nr, (int(pair.max()) + 1 if npair else 0) * nc))
+
+
 def _assembled_blocks(X, bf, ne: int, nV: int, nQ: int):
     """(A_II, A_VF, facet dofs) of every element from NGSolve's assembly of ``bf`` on the whole mesh (the
     general path; :mod:`.mixed_blocks` builds them from reference matrices on straight triangles)."""
@@ -517,23 +528,22 @@ class PatchSolver:
             b[:, :, :, nV:] += kappa.T.reshape(nf, 3, ne)[:, :, :, None] * self.mass_Q[None, None]
         # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
         g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
-        # the opposite edges eliminated per element (_condense): right-hand sides of the patch unknowns
-        gE = np.take_along_axis(g, self._Et[None], axis=3)                          # (nf, 3, ne, nE)
-        gO = np.take_along_axis(g, self._Ot[None], axis=3)                          # (nf, 3, ne, nO)
-        if gO.shape[3]:
-            gE -= np.einsum("ikeo,fiko->fike", self._Ct, gO)
         ops = self._patch_operators()
         if ops is None and self._keep_inverses and self._calls >= self._inverse_from:
             self._form_inverses()
             ops = self._patch_operators()
-        if ops is not None:  # every patch inverse is kept: scatter and inverses as two sparse products, a gather
-            E, S_inv, unknown = ops
+        if ops is not None:  # every patch inverse is kept: the whole map g -> msum as four sparse products
+            E_in, S_inv, G_out, R = ops
             # one right-hand side at a time: scipy's product with several vectors is slower than as many
             # products with one (S_inv, the largest, is read once per vector either way)
-            mE = np.stack([(S_inv @ (E @ gf))[unknown] for gf in gE.reshape(nf, -1)]).reshape(gE.shape)
+            msum = np.stack([G_out @ (S_inv @ (E_in @ gf)) + R @ gf for gf in g.reshape(nf, -1)]).reshape(nf, ne, nF3)
         else:
-            mE = self._patch_loop(gE, nf)
-        msum = self._facet_sums(mE, gO)
+            # the opposite edges eliminated per element (_condense): right-hand sides of the patch unknowns
+            gE = np.take_along_axis(g, self._Et[None], axis=3)                      # (nf, 3, ne, nE)
+            gO = np.take_along_axis(g, self._Ot[None], axis=3)                      # (nf, 3, ne, nO)
+            if gO.shape[3]:
+                gE -= np.einsum("ikeo,fiko->fike", self._Ct, gO)
+            msum = self._facet_sums(self._patch_loop(gE, nf), gO)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
         if self.A_II_inv is None and self._calls >= self._inverse_from:
             self.A_II_inv = np.linalg.inv(self.A_II)
@@ -590,13 +600,17 @@ class PatchSolver:
         return mE
 
     def _patch_operators(self):
-        """(E, S_inv, unknown) once every patch inverse is kept (else None): E scatters the right-hand sides of the
-        patch unknowns (3 ne nE, hat-major: the facet dofs at the vertex of every (hat, element) pair) into the
-        stacked patch unknowns (not into the fixed ones: their right-hand side is zero), S_inv is block diagonal
-        with the patch inverses, ``unknown`` the patch unknown of every (hat, element, dof at the vertex); the
-        solutions ``(S_inv @ (E @ g))[unknown]`` are what :meth:`_patch_loop` computes.  Built once, as CSR arrays
-        directly: every (hat, element, dof at the vertex) is one patch unknown, so E has at most one entry per
-        column, S_inv m per row of a patch of m unknowns (canonical CSR: sorted indices, no duplicates)."""
+        """(E_in, S_inv, G_out, R) once every patch inverse is kept (else None): the map from the condensed
+        right-hand sides g (3 ne nF3, hat-major) to msum (ne nF3) of :meth:`solve`,
+        msum = G_out S_inv E_in g + R g, the same as the elimination of :meth:`_condense`, :meth:`_patch_loop` and
+        :meth:`_facet_sums`.  E (built here as CSR arrays directly: every (hat, element, dof at the vertex) is
+        one patch unknown, so E has at most one entry per column) scatters the right-hand sides of the patch
+        unknowns (3 ne nE) into the stacked patch unknowns (not into the fixed ones: their right-hand side is
+        zero), S_inv is block diagonal with the patch inverses (m per row of a patch of m unknowns; canonical
+        CSR), U picks the patch unknown of every (hat, element, dof at the vertex); with the per-pair blocks of
+        the elimination (T_E, T_O: the columns at / opposite to the vertex, C = S_EO S_OO^-1, and P_E, P_O
+        summing onto the facet dofs of the elements): E_in = E (T_E - C T_O),
+        G_out = (P_E - P_O S_OO^-1 S_OE) U, R = P_O S_OO^-1 T_O."""
         from scipy.sparse import csc_matrix, csr_matrix
 
         if self._patch_ops is not None:
@@ -636,7 +650,29 @@ class PatchSolver:
         E = csc_matrix((np.ones(int(free.sum())), unknown[free], np.concatenate([[0], np.cumsum(free)]).astype(itype)),
                        shape=(base, n_in)).tocsr()
         S_inv = csr_matrix((data, cols, indptr), shape=(base, base))
-        self._patch_ops = (E, S_inv, unknown)
+        U = csr_matrix((np.ones(n_in), unknown, np.arange(n_in + 1, dtype=itype)), shape=(n_in, base))
+        nF3, nO = self.nF3, self._O.shape[2]
+        pair = np.arange(3 * ne)                                  # hat-major (i, K): i ne + K
+        Kp = pair % ne
+        T_E = _pair_blocks(np.ones((3 * ne, nE, 1)), pair, self._Et.reshape(3 * ne, nE, 1), nE, nF3)
+        P_E = _pair_blocks(np.ones((3 * ne, nE, 1)), Kp, self._Et.reshape(3 * ne, nE, 1), nE, nF3).T
+        if nO:
+            T_O = _pair_blocks(np.ones((3 * ne, nO, 1)), pair, self._Ot.reshape(3 * ne, nO, 1), nO, nF3)
+            P_O = _pair_blocks(np.ones((3 * ne, nO, 1)), Kp, self._Ot.reshape(3 * ne, nO, 1), nO, nF3).T
+            C = self._Ct.reshape(3 * ne, nE, nO)
+            Sinv = self._S_OO_inv_t.reshape(3 * ne, nO, nO)
+            B = Sinv @ self._S_OE_t.reshape(3 * ne, nO, nE)
+            blk = lambda M, rows, cols: _pair_blocks(M, pair, np.broadcast_to(np.arange(cols), (3 * ne, cols))[:, None, :]
+                                                     .repeat(rows, axis=1), rows, cols)
+            E_in = E @ (T_E - blk(C, nE, nO) @ T_O)
+            G_out = (P_E - P_O @ blk(B, nO, nE)) @ U
+            R = P_O @ blk(Sinv, nO, nO) @ T_O
+        else:
+            E_in, G_out, R = E @ T_E, P_E @ U, csr_matrix((ne * nF3, 3 * ne * nF3))
+        E_in, G_out, R = (M.tocsr() for M in (E_in, G_out, R))
+        for M in (E_in, G_out, R):
+            M.eliminate_zeros()  # the blocks of Dirichlet opposite edges
+        self._patch_ops = (E_in, S_inv, G_out, R)
         return self._patch_ops
         keys = [(gi, c0) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
         if not self._keep_inverses or any(k not in self._inv_cache for k in keys):
