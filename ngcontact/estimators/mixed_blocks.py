@@ -39,7 +39,8 @@ from ngsolve import (H1, HDiv, L2, BilinearForm, CoefficientFunction, ElementId,
 
 from ..discretizations.p1 import p1_tables
 
-__all__ = ["AffineTriangles", "mixed_element_blocks", "flux_operators", "reference_blocks", "RANKINGS"]
+__all__ = ["AffineTriangles", "mixed_element_blocks", "flux_operators", "ElementFluxOperator", "reference_blocks",
+           "RANKINGS"]
 
 #: rankings of the global numbers of a triangle's local vertices 0, 1, 2 (rank 0: the smallest number)
 RANKINGS = tuple(itertools.permutations(range(3)))
@@ -203,9 +204,9 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[
 
 
 def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bool):
-    """The hat-weighted flux operators of :func:`.flux._flux_operator` (mu = 1) as one sparse matrix (3 ne nI x
-    space.ndof, rows in the layout of :meth:`.patches.PatchSolver.operators`: hat i, element K, local RT then P_q
-    dof): for the hat psi_i of the local vertex i, the rows of
+    """The hat-weighted flux operators of :func:`.flux._flux_operator` (mu = 1) as one :class:`ElementFluxOperator`
+    (3 ne nI x space.ndof, rows in the layout of :meth:`.patches.PatchSolver.operators`: hat i, element K, local RT
+    then P_q dof): for the hat psi_i of the local vertex i, the rows of
 
         -(psi_i grad u, tau)_K + (grad psi_i . grad u, w)_K,
 
@@ -215,8 +216,6 @@ def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bo
     the reference triangle, the w rows sum_b (H grad^ psi_i)_b (d_b u, w)^ with H = det B (B^T B)^-1.  None
     where the reference matrices do not apply (``tri`` None, ``space`` not H1 of one order p with p = 1 or
     ``hessian``, another dof layout of ``Y``)."""
-    from scipy.sparse import csr_matrix
-
     p = int(getattr(space, "globalorder", 0))
     if tri is None or type(space).__name__ != "H1" or p < 1 or not (hessian or p == 1):
         return None
@@ -234,16 +233,46 @@ def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bo
     B, det = tri.B, tri.det
     BtB = np.einsum("kia,kib->kab", B, B)
     H = np.linalg.inv(BtB) * det[:, None, None]
-    nI = nV + nQ
-    big = max(3 * ne * nI * nU, space.ndof) >= np.iinfo(np.int32).max
-    itype = np.int64 if big else np.int32
-    # every row holds the element's dofs in their local order (a valid CSR for products; not sorted)
-    indices = np.broadcast_to(udofs.astype(itype)[None, :, None, :], (3, ne, nI, nU)).ravel()
-    indptr = np.arange(3 * ne * nI + 1, dtype=itype) * nU
-    data = np.empty((3, ne, nI, nU))
-    for i in range(3):
-        c_i = H @ _HAT_GRADS[i]                                     # (ne, 2)
-        for c, sel in tri.classes():
-            data[i, sel, :nV] = -Ft[c][i]
-            data[i, sel, nV:] = np.einsum("kb,bjn->kjn", c_i[sel], E[c])
-    return csr_matrix((data.ravel(), indices, indptr), shape=(3 * ne * nI, space.ndof))
+    coef = np.stack([H @ _HAT_GRADS[i] for i in range(3)])                  # (3, ne, 2)
+    return ElementFluxOperator(Ft, E, coef, udofs, list(tri.classes()), space.ndof)
+
+
+class ElementFluxOperator:
+    """The operator of :func:`flux_operators` applied element by element, without forming its matrix: ``op @ u``
+    (u: coefficients of the trial space, (ndof,) or (ndof, m)) gives the rows (hat i, element K, RT then P_q
+    dof), ``-Ft_c[i] u_K`` and ``sum_b coef[i, K, b] E_c[b] u_K`` on K of ranking class c.  The matrix has
+    3 nI nU entries per element (14e6 at 14e3 triangles for q = p = 3): forming it cost more than the few
+    products an estimate takes with it.  :meth:`tocsr` forms it (tests)."""
+
+    def __init__(self, Ft, E, coef, udofs, classes, ndof: int):
+        self.Ft, self.E, self.coef, self.udofs, self.classes = Ft, E, coef, udofs, classes
+        self.nV, self.nQ = Ft.shape[2], E.shape[2]
+        self.shape = (3 * len(udofs) * (self.nV + self.nQ), int(ndof))
+
+    def __matmul__(self, u):
+        u = np.asarray(u, dtype=float)
+        ne, nV = len(self.udofs), self.nV
+        uK = u[self.udofs]                                                # (ne, nU[, m])
+        out = np.empty((3, ne, nV + self.nQ) + u.shape[1:])
+        for c, sel in self.classes:
+            uc = uK[sel]
+            t = np.einsum("bjn,kn...->kbj...", self.E[c], uc)             # (k, 2, nQ[, m])
+            for i in range(3):
+                out[i, sel, :nV] = -np.einsum("jn,kn...->kj...", self.Ft[c][i], uc)
+                out[i, sel, nV:] = np.einsum("kb,kbj...->kj...", self.coef[i, sel], t)
+        return out.reshape((self.shape[0],) + u.shape[1:])
+
+    def tocsr(self):
+        """The operator as a CSR matrix (every row holds the element's dofs in their local order)."""
+        from scipy.sparse import csr_matrix
+
+        nU = self.udofs.shape[1]
+        ne, nI = len(self.udofs), self.nV + self.nQ
+        data = np.empty((3, ne, nI, nU))
+        for c, sel in self.classes:
+            for i in range(3):
+                data[i, sel, :self.nV] = -self.Ft[c][i]
+                data[i, sel, self.nV:] = np.einsum("kb,bjn->kjn", self.coef[i, sel], self.E[c])
+        indices = np.broadcast_to(self.udofs[None, :, None, :], (3, ne, nI, nU)).ravel()
+        indptr = np.arange(3 * ne * nI + 1) * nU
+        return csr_matrix((data.ravel(), indices, indptr), shape=self.shape)

@@ -28,10 +28,10 @@ of the patch matrices (formed at the third call, or at the first when the caller
 :attr:`PatchSolver.CACHE_BYTES`; from then on step 4 is three sparse products -- scatter,
 block-diagonal inverses, gather -- instead of the loop over groups of patches), and the parts
 of the right-hand sides that are linear in a GridFunction (the flux terms psi_a mu grad u_h of
-:mod:`.flux`): their three hat-weighted operators are assembled once as sparse matrices
-(:meth:`PatchSolver.operators`; on straight triangles from reference matrices,
-:func:`.mixed_blocks.flux_operators`), so a new u_h costs three sparse products instead of three
-assemblies with the Hessian and element-boundary terms; likewise the FE-mass-rule sources linear in a
+:mod:`.flux`): their three hat-weighted operators are built once (:meth:`PatchSolver.operators`:
+on straight triangles applied element by element from reference matrices,
+:func:`.mixed_blocks.flux_operators`, else assembled as sparse matrices), so a new u_h costs one
+product instead of three assemblies with the Hessian and element-boundary terms; likewise the FE-mass-rule sources linear in a
 GridFunction (``PatchData.mass`` of :mod:`.flux`), and the load part of the sources is assembled once
 per load object (:meth:`PatchSolver.fixed_vectors`).
 
@@ -349,11 +349,12 @@ class PatchSolver:
         self._inverse_from = min(self._inverse_from, self._calls + 1)
 
     def operators(self, key, space, form_of_hat, reference=None):
-        """The sparse matrix (3 ne nI x space.ndof) of the bilinear forms ``form_of_hat(hat_i)`` (trial functions
-        of ``space``, test functions of ``self.Y``), its rows in the layout of the right-hand sides of
-        :meth:`solve` (hat i, element K, local dof: V, then Q), built once per ``key`` and kept: by
-        ``reference(self)`` (the same matrix by other means, e.g. :func:`.mixed_blocks.flux_operators`) unless it
-        is None or returns None, else assembled (three assemblies, rows reordered)."""
+        """The operator (3 ne nI x space.ndof; ``@`` a coefficient vector) of the bilinear forms
+        ``form_of_hat(hat_i)`` (trial functions of ``space``, test functions of ``self.Y``), its rows in the layout
+        of the right-hand sides of :meth:`solve` (hat i, element K, local dof: V, then Q), built once per ``key``
+        and kept: by ``reference(self)`` (the same operator by other means, e.g. the element-by-element
+        :func:`.mixed_blocks.flux_operators`) unless it is None or returns None, else assembled (three
+        assemblies, rows reordered: a sparse matrix)."""
         from scipy.sparse import csr_matrix, vstack
 
         if key not in self._ops:
