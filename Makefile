@@ -119,13 +119,16 @@ adaptive-speed: $(STAMP)
 
 ## sweep: uniform vs adaptive (Doerfler 0.5, bisection, warm start) FEM P1..P3 on lshape, test1,
 ## disk, disk_fitted, point_load; one independent target per run (`make -j2 sweep`; each run uses one NGSolve
-## thread, so parallel runs do not distort each other's times); entries: ngcontact/studies/sweep.py SWEEP.
+## thread, so parallel runs do not distort each other's times; a run is redone when a file of ngcontact/ or cases/
+## is newer than it); entries: ngcontact/studies/sweep.py SWEEP.
 ## report: reads only the sweep's CSVs -> results/REPORT.md + results/report/*.png
 SWEEP_RUNS := $(foreach s,lshape test1 disk disk_fitted point_load,$(foreach m,uniform adaptive,$(foreach p,1 2 3,results/sweep/runs/$(s)-$(m)-p$(p))))
 .PHONY: sweep report
 sweep: $(SWEEP_RUNS)
 
-results/sweep/runs/%: $(STAMP)
+# a run is redone when the package or the scenes changed since it was written
+SWEEP_SRC := $(shell find ngcontact cases -name '*.py')
+results/sweep/runs/%: $(STAMP) $(SWEEP_SRC)
 	OPENBLAS_NUM_THREADS=1 $(PY) -m ngcontact.studies.sweep run $* $@.part && rm -rf $@ && mv $@.part $@
 
 report: $(STAMP)
