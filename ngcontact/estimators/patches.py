@@ -31,16 +31,17 @@ of the right-hand sides that are linear in a GridFunction (the flux terms psi_a 
 :mod:`.flux`): their three hat-weighted operators are built once (:meth:`PatchSolver.operators`:
 on straight triangles applied element by element from reference matrices,
 :func:`.mixed_blocks.flux_operators`, else assembled as sparse matrices), so a new u_h costs one
-product instead of three assemblies with the Hessian and element-boundary terms; likewise the FE-mass-rule sources linear in a
-GridFunction (``PatchData.mass`` of :mod:`.flux`), and the load part of the sources is assembled once
-per load object (:meth:`PatchSolver.fixed_vectors`).
+product instead of three assemblies with the Hessian and element-boundary terms; likewise the
+FE-mass-rule sources linear in a GridFunction (``PatchData.mass`` of :mod:`.flux`), and the load part of
+the sources is assembled once per load object (:meth:`PatchSolver.fixed_vectors`).
 
 Cost: ``PatchwiseSolve`` (NGSolve 6.2) loops over the vertices on one thread, recomputes the
 element matrices of every patch (three times per element) and inverts the full patch matrix
 (~90 unknowns for q = 1, 220 for q = 2): ~30 us per vertex and field for q = 1.  Here the
 factorizations are of element size, the patch systems have only the facet unknowns of the edges at
-the vertex (~12 for q = 1, ~24 for q = 3), and the structure (element blocks, condensation, patch numbering) is built once per
-mesh and reused for every field and every Newton iterate (:func:`.flux.patch_solver`).
+the vertex (~12 for q = 1, ~24 for q = 3), and the structure (element blocks, condensation, patch
+numbering) is built once per mesh and reused for every field and every Newton iterate
+(:func:`.flux.patch_solver`).
 Interior patches (no Dirichlet facet) are singular: (r, m) = (1, 1) solves the homogeneous
 problem, and the condensed matrix is singular to round-off whatever tiny eps (r, w) is added
 (eps |omega_a| ~ 1e-15 relative), so it is treated exactly instead, in the eps -> 0 limit of
@@ -50,8 +51,8 @@ straight meshes, the vertex-rule error on curved ones) into the constant source 
 on the patch, and this constant is added to the data explicitly; the condensed system is then
 compatible and solved with S + z z^T (z the facet vector of the constant 1 on the dofs at the
 vertex), whose solution satisfies S m = g and z^T m = 0 (another normalization of the null mode
-than PatchwiseSolve's: the same flux, the P_q part differs by a constant).  The element blocks are factorized with eps = 0 (the
-divergence of broken RT_q onto P_q(K) makes them invertible).
+than PatchwiseSolve's: the same flux, the P_q part differs by a constant).  The element blocks are
+factorized with eps = 0 (the divergence of broken RT_q onto P_q(K) makes them invertible).
 """
 from __future__ import annotations
 
@@ -663,8 +664,10 @@ class PatchSolver:
             C = self._Ct.reshape(3 * ne, nE, nO)
             Sinv = self._S_OO_inv_t.reshape(3 * ne, nO, nO)
             B = Sinv @ self._S_OE_t.reshape(3 * ne, nO, nE)
-            blk = lambda M, rows, cols: _pair_blocks(M, pair, np.broadcast_to(np.arange(cols), (3 * ne, cols))[:, None, :]
-                                                     .repeat(rows, axis=1), rows, cols)
+
+            def blk(M, rows, cols):  # the per-pair dense blocks M (3 ne, rows, cols) as a block-diagonal matrix
+                return _pair_blocks(M, pair, np.broadcast_to(np.arange(cols), (3 * ne, rows, cols)), rows, cols)
+
             E_in = E @ (T_E - blk(C, nE, nO) @ T_O)
             G_out = (P_E - P_O @ blk(B, nO, nE)) @ U
             R = P_O @ blk(Sinv, nO, nO) @ T_O
