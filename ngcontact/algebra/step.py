@@ -123,7 +123,7 @@ class LinearizedStep:
         s = self.system
         x_new = self.expand(z)
         y_new = self.y_fixed.copy()
-        mixed, eq = self.mixed, self.eq
+        mixed = self.mixed
         if mixed.any():
             y_new[mixed] = self.c0[mixed] - self.w[mixed] * (s._B @ x_new - s.b)[mixed]
         if len(self.eq_rows):

@@ -141,7 +141,6 @@ def _assembled_blocks(X, bf, ne: int, nV: int, nQ: int):
     nrow = int(lens[0])
     if not np.all(lens == nrow):
         raise ValueError("unexpected sparsity pattern of the patch bilinear form")
-    nF3 = nrow - nI
     cols = indices[:offQ * nrow].reshape(ne, nV, nrow)
     base = (np.arange(ne) * nV)[:, None]
     expect = np.concatenate([base + np.arange(nV), offQ + (np.arange(ne) * nQ)[:, None] + np.arange(nQ)], axis=1)
@@ -677,44 +676,4 @@ class PatchSolver:
         for M in (E_in, G_out, R):
             M.eliminate_zeros()  # the blocks of Dirichlet opposite edges
         self._patch_ops = (E_in, S_inv, G_out, R)
-        return self._patch_ops
-        keys = [(gi, c0) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
-        if not self._keep_inverses or any(k not in self._inv_cache for k in keys):
-            return None
-        ne, nF3 = self.mesh.ne, self.nF3
-        n_in = 3 * ne * nF3
-        chunks = [(gi, c0, G) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
-        sizes = [len(G["pairs"][c0:c0 + self.CHUNK]) * G["m"] for _, c0, G in chunks]
-        base, nnz = int(sum(sizes)), int(sum(n * G["m"] for n, (_, _, G) in zip(sizes, chunks)))
-        itype = np.int32 if max(base, nnz, n_in) < np.iinfo(np.int32).max else np.int64
-        unknown = np.full(n_in, -1, dtype=itype)  # patch unknown of (hat i, element K, facet dof t)
-        free = np.zeros(n_in, dtype=bool)
-        data, cols = np.empty(nnz), np.empty(nnz, dtype=itype)  # S_inv, filled chunk by chunk
-        indptr = np.empty(base + 1, dtype=itype)
-        indptr[0] = 0
-        start = at = 0
-        for (gi, c0, G), size in zip(chunks, sizes):
-            m, sl = G["m"], slice(c0, c0 + self.CHUNK)
-            pairs, loc = G["pairs"][sl], G["loc"][sl]                              # (np, n), (np, n, nF3)
-            npch = len(pairs)
-            K, i = self.pair_K[pairs], self.pair_i[pairs]
-            col = ((i[:, :, None] * ne + K[:, :, None]) * nF3 + np.arange(nF3)).ravel()
-            unknown[col] = (start + np.arange(npch)[:, None, None] * m + loc).ravel()
-            free[col] = ~np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1).ravel()
-            # row j of patch p: row j of its inverse at the patch's columns
-            data[at:at + size * m] = self._inv_cache[(gi, c0)].ravel()
-            cols[at:at + size * m].reshape(npch, m, m)[...] = (start + np.arange(npch)[:, None, None] * m
-                                                                + np.arange(m)[None, None, :])
-            indptr[start + 1:start + size + 1] = at + m * np.arange(1, size + 1)
-            start, at = start + size, at + size * m
-        if unknown.min() < 0:  # pragma: no cover - every (hat, element) pair lies in one patch
-            raise RuntimeError("a (hat, element) pair outside the vertex patches")
-        # E: column (i, K, t) -> its patch unknown, if that one is free
-        E = csc_matrix((np.ones(int(free.sum())), unknown[free], np.concatenate([[0], np.cumsum(free)]).astype(itype)),
-                       shape=(base, n_in)).tocsr()
-        S_inv = csr_matrix((data, cols, indptr), shape=(base, base))
-        # Gt: facet dof (K, t) gathers the unknowns of its three vertex patches
-        Gt = csr_matrix((np.ones(n_in), np.sort(unknown.reshape(3, ne * nF3).T, axis=1).ravel(),
-                         np.arange(0, n_in + 1, 3, dtype=itype)), shape=(ne * nF3, base))
-        self._patch_ops = (E, S_inv, Gt)
         return self._patch_ops
