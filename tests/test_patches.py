@@ -42,15 +42,15 @@ def test_opposite_edges_are_eliminated_per_element(scene, p, level, monkeypatch)
     the element blocks from reference matrices, and the curved disk with the assembled ones): the patch systems
     hold the 2(q + 1) dofs per element of the edges at the vertex, and the fluxes are those of the patch systems
     with every facet dof of the patch (the elimination switched off) to round-off."""
-    import ngcontact.estimators.patches as patches
+    import ngcontact.estimators.opposite_edges as opposite_edges
 
     disc, sol = _solved(scene, p, level)
     q = p  # flux order p
     S = patch_solver(DiscretizationView.of(disc), q)
-    assert S.nE == 2 * (q + 1) and S._O.shape[2] == q + 1
-    assert S._fixed_O.any() and not S._fixed_O.all()  # Dirichlet opposite edges: m = 0 there, nothing to solve
+    assert S.nE == 2 * (q + 1) and S.elim.O.shape[2] == q + 1
+    assert S.elim.fixed_O.any() and not S.elim.fixed_O.all()  # Dirichlet opposite edges: m = 0 there, nothing to solve
     with_elimination = reconstruct_fluxes(disc, sol.x, sol.y)
-    monkeypatch.setattr(patches, "_opposite_vertices", lambda *a, **k: None)
+    monkeypatch.setattr(opposite_edges, "_opposite_vertices", lambda *a, **k: None)
     DiscretizationView.of(disc).cache.pop(("patch_solver", q))
     assert patch_solver(DiscretizationView.of(disc), q).nE == 3 * (q + 1)
     without = reconstruct_fluxes(disc, sol.x, sol.y)

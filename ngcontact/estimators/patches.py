@@ -14,7 +14,7 @@ right-hand side term multiplied by the hat function psi_a of the patch), compute
    with the barycentric coordinate of the local vertex of K that is a: three assemblies (one per
    local vertex) give all of them; they are condensed like the matrix;
 4. in patch a the edge of K opposite to a lies on the patch boundary, so its facet dofs belong to K
-   alone there: they are eliminated per (element, local vertex) as well (:meth:`PatchSolver._condense`),
+   alone there: they are eliminated per (element, local vertex) as well (:mod:`.opposite_edges`),
    and patch a solves sum_{K in T_a} S'_K m = sum_K g'_K^a on the free facet dofs of the edges at a
    (2(q + 1) per element instead of 3(q + 1); the facet dofs of the Dirichlet boundary are not free,
    as in PatchwiseSolve), batched over patches of equal size with ``numpy.linalg.solve``; the
@@ -57,8 +57,10 @@ factorized with eps = 0 (the divergence of broken RT_q onto P_q(K) makes them in
 from __future__ import annotations
 
 import numpy as np
-from ngsolve import (EDGE, H1, VOL, BilinearForm, CoefficientFunction, Discontinuous, ElementId, GridFunction,
-                     LinearForm, NodeId, TaskManager, dx)
+from ngsolve import (H1, VOL, BilinearForm, CoefficientFunction, Discontinuous, ElementId, GridFunction,
+                     LinearForm, TaskManager, dx)
+
+from .opposite_edges import OppositeEdges
 
 __all__ = ["PatchSolver", "local_hats"]
 
@@ -81,46 +83,6 @@ def _scatter_add(shape, flat_index, values) -> np.ndarray:
     """Dense array of ``shape`` with values summed into the flat indices (np.add.at, by bincount)."""
     n = int(np.prod(shape))
     return np.bincount(flat_index.ravel(), weights=values.ravel(), minlength=n).reshape(shape)
-
-
-def _opposite_vertices(mesh, F, ev, k: int, sample: int = 8):
-    """opp (3,): the local vertex of a triangle opposite to its local edge j, where the facet space ``F`` numbers
-    the dofs of an element in local order edge by edge (local edge j: columns j k .. j k + k - 1, the dofs of
-    that edge), as checked on the first ``sample`` elements against the mesh's edges and the element vertices
-    ``ev``; else None."""
-    opp = None
-    for K in range(min(sample, mesh.ne)):
-        el = ElementId(VOL, K)
-        dofs = np.asarray(F.GetDofNrs(el), dtype=np.int64)
-        edges = [e.nr for e in mesh[el].edges]
-        if len(dofs) != 3 * k or len(edges) != 3:
-            return None
-        row = []
-        for j, e in enumerate(edges):
-            node = NodeId(EDGE, e)
-            if not np.array_equal(np.asarray(F.GetDofNrs(node), dtype=np.int64), dofs[j * k:(j + 1) * k]):
-                return None
-            ends = {v.nr for v in mesh[node].vertices}
-            out = [i for i in range(3) if int(ev[K, i]) not in ends]
-            if len(out) != 1:
-                return None
-            row.append(out[0])
-        if opp is None:
-            opp = np.array(row)
-        elif not np.array_equal(opp, row):
-            return None
-    return opp if opp is not None and sorted(opp) == [0, 1, 2] else None
-
-
-def _pair_blocks(M: np.ndarray, pair: np.ndarray, cols: np.ndarray, nr: int, nc: int):
-    """Sparse matrix with the dense blocks M[p] (np, nr, ncol) at rows p nr .. p nr + nr - 1 and columns
-    pair[p] nc + cols[p] (cols (np, nr, ncol): the column of every entry within the block row of pair[p])."""
-    from scipy.sparse import csr_matrix
-
-    npair = len(pair)
-    rows = np.repeat(np.arange(npair * nr), M.shape[2])
-    c = (pair[:, None, None] * nc + cols).ravel()
-    return csr_matrix((M.ravel(), (rows, c)), shape=(npair * nr, (int(pair.max()) + 1 if npair else 0) * nc))
 
 
 def _assembled_blocks(X, bf, ne: int, nV: int, nQ: int):
@@ -218,10 +180,10 @@ class PatchSolver:
         count = np.bincount(pair_a, minlength=nv)
         start = np.concatenate([[0], np.cumsum(count)])
         # the facet dofs of K at its local vertex i (E) and on the opposite edge (O, condensed per element)
-        self._condense(mesh, F, fdofs - offF, ev, S_K, ~free[fdofs], local_order=blocks is not None)
-        fixed_O = self._fixed_O[self.pair_K, self.pair_i]          # (npair,) Dirichlet opposite edge
+        self.elim = OppositeEdges(mesh, F, fdofs - offF, ev, S_K, ~free[fdofs], local_order=blocks is not None)
+        fixed_O = self.elim.fixed_O[self.pair_K, self.pair_i]      # (npair,) Dirichlet opposite edge
         # patch-local numbering of the facet dofs at the vertex
-        fd = np.take_along_axis(fdofs[self.pair_K], self._E[self.pair_K, self.pair_i], axis=1)  # (npair, nE)
+        fd = np.take_along_axis(fdofs[self.pair_K], self.elim.E[self.pair_K, self.pair_i], axis=1)  # (npair, nE)
         key = pair_a[:, None].astype(np.int64) * X.ndof + fd
         uniq, inv = np.unique(key.ravel(), return_inverse=True)
         upatch = uniq // X.ndof
@@ -250,91 +212,10 @@ class PatchSolver:
         self._calls = 0
         self._inverse_from = 3  # the call of solve() that forms the inverses (expect_repeats: the first)
         nbytes = sum(len(G["pairs"]) * G["m"] ** 2 * 8 for G in self.groups)
-        self.nE = self._E.shape[2]
+        self.nE = self.elim.nE
         self._keep_inverses = nbytes <= self.CACHE_BYTES
         self.hats = local_hats(mesh)  # local-vertex hat functions (barycentric coordinates of K)
 
-    def _condense(self, mesh, F, fd, ev, S_K, fixed, local_order: bool) -> None:
-        """Element-level elimination of the facet dofs of K on the edge opposite to its local vertex i.
-
-        In the patch of vertex a the edge of K opposite to a lies on the patch boundary: its facet dofs belong to
-        K alone there, so they are eliminated per (K, i) before the patch matrices are summed:
-        S' = S_EE - S_EO S_OO^-1 S_OE, g' = g_E - S_EO S_OO^-1 g_O, and after the patch solve
-        m_O = S_OO^-1 (g_O - S_OE m_E).  S_OO is positive definite: the only null vector of S_K, the facet
-        vector of the constant 1, does not vanish on E.  A Dirichlet opposite edge has m_O = 0 (S' = S_EE).
-        The patch systems keep the facet dofs of the edges at their vertex only: 2(q + 1) per element instead
-        of 3(q + 1), an eighth of the LU work.  (The null mode of an interior patch is then normalized on
-        those dofs; it changes the P_q part of the patch solution by a constant, not the flux.)
-
-        ``fd``: facet dofs of K (numbering of F; in K's local order if ``local_order``, else sorted), ``fixed``:
-        which of them are Dirichlet.  Sets ``_E`` (ne, 3, nE)
-        and ``_O`` (ne, 3, nO), the columns of K's facet dofs at / opposite to local vertex i, ``_fixed_O``
-        (ne, 3), ``S_pair`` (ne, 3, nE, nE) and the hat-major arrays of :meth:`solve`.  Where the layout of the
-        facet dofs is not the one :func:`_opposite_vertices` checks, or an opposite edge is partly fixed, nothing
-        is eliminated (E: all columns, nO = 0)."""
-        ne, nF3 = fd.shape
-        k = nF3 // 3
-        E = O = fixed_O = None
-        opp = _opposite_vertices(mesh, F, ev, k) if nF3 == 3 * k and ne else None
-        if opp is not None:
-            if local_order:  # column c of K lies on local edge c // k
-                edge = np.broadcast_to(np.arange(nF3) // k, (ne, nF3))
-            else:  # columns sorted by number: their positions among K's dofs in local order
-                loc = np.array([F.GetDofNrs(ElementId(VOL, e)) for e in range(ne)], dtype=np.int64)
-                pos = np.argsort(loc, axis=1, kind="stable")
-                edge = pos // k if np.array_equal(np.take_along_axis(loc, pos, axis=1), fd) else None
-            if edge is not None:
-                at = opp[edge][:, :, None] != np.arange(3)                      # (ne, nF3, 3): on an edge at i
-                cols = np.argsort(~at.transpose(0, 2, 1), axis=2, kind="stable")  # (ne, 3, nF3): E first
-                E, O = cols[:, :, :2 * k], cols[:, :, 2 * k:]
-                fo = np.take_along_axis(np.broadcast_to(fixed[:, None, :], (ne, 3, nF3)), O, axis=2)
-                fixed_O = fo.all(axis=2)
-                if not np.array_equal(fixed_O, fo.any(axis=2)):
-                    E = None
-        if E is None:  # no elimination
-            E = np.broadcast_to(np.arange(nF3), (ne, 3, nF3)).copy()
-            O = np.zeros((ne, 3, 0), dtype=E.dtype)
-            fixed_O = np.zeros((ne, 3), dtype=bool)
-        same = bool(np.all(E == E[:1])) and bool(np.all(O == O[:1]))  # one column pattern (local order)
-
-        def block(R, C):  # (ne, 3, len R, len C): S_K[K][R[K, i]][:, C[K, i]]
-            if same:
-                return np.stack([S_K[:, R[0, i][:, None], C[0, i][None, :]] for i in range(3)], axis=1)
-            return np.take_along_axis(np.take_along_axis(S_K[:, None], R[:, :, :, None], axis=2), C[:, :, None, :],
-                                      axis=3)
-
-        S_EE, S_EO, S_OE, S_OO = block(E, E), block(E, O), block(O, E), block(O, O)
-        nO = O.shape[2]
-        S_OO[fixed_O] = np.eye(nO)
-        S_OO_inv = np.linalg.inv(S_OO) if nO else S_OO
-        S_OO_inv[fixed_O] = 0.0
-        C = S_EO @ S_OO_inv                                                     # (ne, 3, nE, nO)
-        self._E, self._O, self._fixed_O = E, O, fixed_O
-        self.S_pair = S_EE - C @ S_OE if nO else S_EE
-        # hat-major (3, ne, ...) for the right-hand sides (nf, 3, ne, nF3) of solve()
-        self._Et, self._Ot = E.transpose(1, 0, 2).copy(), O.transpose(1, 0, 2).copy()
-        self._Ct = C.transpose(1, 0, 2, 3).copy()
-        self._S_OE_t, self._S_OO_inv_t = S_OE.transpose(1, 0, 2, 3).copy(), S_OO_inv.transpose(1, 0, 2, 3).copy()
-        base = (np.arange(ne) * nF3)[:, None]
-        self._flat_E = [(base + E[:, i]).ravel() for i in range(3)]
-        self._flat_O = [(base + O[:, i]).ravel() for i in range(3)]
-
-    def _facet_sums(self, mE: np.ndarray, gO: np.ndarray) -> np.ndarray:
-        """msum (nf, ne, nF3): sum over the three vertex patches of K of the patch solutions on K's facet dofs,
-        from the solutions mE (nf, 3, ne, nE) at the vertex and the eliminated right-hand sides gO (nf, 3, ne, nO)
-        (:meth:`_condense`)."""
-        nf = mE.shape[0]
-        ne, nF3 = self.mesh.ne, self.nF3
-        msum = np.zeros((nf, ne * nF3))
-        nO = gO.shape[3]
-        if nO:
-            mO = np.einsum("ikop,fikp->fiko", self._S_OO_inv_t,
-                           gO - np.einsum("ikoe,fike->fiko", self._S_OE_t, mE))
-        for i in range(3):  # the columns of one local vertex are distinct: plain += is exact
-            msum[:, self._flat_E[i]] += mE[:, i].reshape(nf, -1)
-            if nO:
-                msum[:, self._flat_O[i]] += mO[:, i].reshape(nf, -1)
-        return msum.reshape(nf, ne, nF3)
 
     #: patches per batched solve (bounded work arrays: the first touch of fresh memory costs as
     #: much as the arithmetic here)
@@ -432,7 +313,7 @@ class PatchSolver:
         lm = loc.astype(np.int64)
         idx = lm[:, :, :, None] * m + lm[:, :, None, :]
         idx += (np.arange(npch, dtype=np.int64) * (m * m))[:, None, None, None]
-        S = np.bincount(idx.ravel(), weights=self.S_pair[self.pair_K[pairs], self.pair_i[pairs]].ravel(),
+        S = np.bincount(idx.ravel(), weights=self.elim.S_pair[self.pair_K[pairs], self.pair_i[pairs]].ravel(),
                         minlength=npch * m * m).reshape(npch, m, m)
         fixed = G["fixed"][sl]
         S[fixed] = 0.0
@@ -539,12 +420,8 @@ class PatchSolver:
             # products with one (S_inv, the largest, is read once per vector either way)
             msum = np.stack([G_out @ (S_inv @ (E_in @ gf)) + R @ gf for gf in g.reshape(nf, -1)]).reshape(nf, ne, nF3)
         else:
-            # the opposite edges eliminated per element (_condense): right-hand sides of the patch unknowns
-            gE = np.take_along_axis(g, self._Et[None], axis=3)                      # (nf, 3, ne, nE)
-            gO = np.take_along_axis(g, self._Ot[None], axis=3)                      # (nf, 3, ne, nO)
-            if gO.shape[3]:
-                gE -= np.einsum("ikeo,fiko->fike", self._Ct, gO)
-            msum = self._facet_sums(self._patch_loop(gE, nf), gO)
+            gE, gO = self.elim.rhs(g)  # the opposite edges eliminated per element (.opposite_edges)
+            msum = self.elim.facet_sums(self._patch_loop(gE, nf), gO)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
         if self.A_II_inv is None and self._calls >= self._inverse_from:
             self.A_II_inv = np.linalg.inv(self.A_II)
@@ -603,8 +480,8 @@ class PatchSolver:
     def _patch_operators(self):
         """(E_in, S_inv, G_out, R) once every patch inverse is kept (else None): the map from the condensed
         right-hand sides g (3 ne nF3, hat-major) to msum (ne nF3) of :meth:`solve`,
-        msum = G_out S_inv E_in g + R g, the same as the elimination of :meth:`_condense`, :meth:`_patch_loop` and
-        :meth:`_facet_sums`.  E (built here as CSR arrays directly: every (hat, element, dof at the vertex) is
+        msum = G_out S_inv E_in g + R g, the same as the elimination of :mod:`.opposite_edges`, :meth:`_patch_loop`
+        and its ``facet_sums``.  E (built here as CSR arrays directly: every (hat, element, dof at the vertex) is
         one patch unknown, so E has at most one entry per column) scatters the right-hand sides of the patch
         unknowns (3 ne nE) into the stacked patch unknowns (not into the fixed ones: their right-hand side is
         zero), S_inv is block diagonal with the patch inverses (m per row of a patch of m unknowns; canonical
@@ -652,28 +529,6 @@ class PatchSolver:
                        shape=(base, n_in)).tocsr()
         S_inv = csr_matrix((data, cols, indptr), shape=(base, base))
         U = csr_matrix((np.ones(n_in), unknown, np.arange(n_in + 1, dtype=itype)), shape=(n_in, base))
-        nF3, nO = self.nF3, self._O.shape[2]
-        pair = np.arange(3 * ne)                                  # hat-major (i, K): i ne + K
-        Kp = pair % ne
-        T_E = _pair_blocks(np.ones((3 * ne, nE, 1)), pair, self._Et.reshape(3 * ne, nE, 1), nE, nF3)
-        P_E = _pair_blocks(np.ones((3 * ne, nE, 1)), Kp, self._Et.reshape(3 * ne, nE, 1), nE, nF3).T
-        if nO:
-            T_O = _pair_blocks(np.ones((3 * ne, nO, 1)), pair, self._Ot.reshape(3 * ne, nO, 1), nO, nF3)
-            P_O = _pair_blocks(np.ones((3 * ne, nO, 1)), Kp, self._Ot.reshape(3 * ne, nO, 1), nO, nF3).T
-            C = self._Ct.reshape(3 * ne, nE, nO)
-            Sinv = self._S_OO_inv_t.reshape(3 * ne, nO, nO)
-            B = Sinv @ self._S_OE_t.reshape(3 * ne, nO, nE)
-
-            def blk(M, rows, cols):  # the per-pair dense blocks M (3 ne, rows, cols) as a block-diagonal matrix
-                return _pair_blocks(M, pair, np.broadcast_to(np.arange(cols), (3 * ne, rows, cols)), rows, cols)
-
-            E_in = E @ (T_E - blk(C, nE, nO) @ T_O)
-            G_out = (P_E - P_O @ blk(B, nO, nE)) @ U
-            R = P_O @ blk(Sinv, nO, nO) @ T_O
-        else:
-            E_in, G_out, R = E @ T_E, P_E @ U, csr_matrix((ne * nF3, 3 * ne * nF3))
-        E_in, G_out, R = (M.tocsr() for M in (E_in, G_out, R))
-        for M in (E_in, G_out, R):
-            M.eliminate_zeros()  # the blocks of Dirichlet opposite edges
+        E_in, G_out, R = self.elim.fold(E, U)
         self._patch_ops = (E_in, S_inv, G_out, R)
         return self._patch_ops
