@@ -39,8 +39,8 @@ from ngsolve import (H1, HDiv, L2, BilinearForm, CoefficientFunction, ElementId,
 
 from ..discretizations.p1 import p1_tables
 
-__all__ = ["AffineTriangles", "mixed_element_blocks", "flux_operators", "ElementFluxOperator", "reference_blocks",
-           "RANKINGS"]
+__all__ = ["AffineTriangles", "ElementBlocks", "shapes", "mixed_element_blocks", "flux_operators",
+           "ElementFluxOperator", "reference_blocks", "RANKINGS"]
 
 #: rankings of the global numbers of a triangle's local vertices 0, 1, 2 (rank 0: the smallest number)
 RANKINGS = tuple(itertools.permutations(range(3)))
@@ -170,13 +170,56 @@ def _element_dofs(space, ne: int) -> np.ndarray:
     return np.array([space.GetDofNrs(ElementId(VOL, e)) for e in range(ne)], dtype=np.int64).reshape(ne, -1)
 
 
-def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[Tuple[np.ndarray, np.ndarray,
-                                                                                      np.ndarray]]:
-    """(A_II (ne, nI, nI), A_VF (ne, nV, nF3), facet dofs (ne, nF3) in the numbering of ``X``) of the form of the
-    module docstring, eps = 0, for ``X`` = broken RT_q x P_q x facet P_q (the space of
-    :func:`.flux._mixed_patch_problem`) on the triangles ``tri``, or None (``tri`` None, another dof layout).
-    The RT and P_q rows are in the order of the dof numbers (those of K are consecutive), the facet columns
-    in the local order of K."""
+@dataclass(frozen=True, eq=False)
+class ElementBlocks:
+    """The element blocks of the patch form (:func:`mixed_element_blocks`), stored once per shape: block s of
+    ``A_II`` (ns, nI, nI) and ``A_VF`` (ns, nV, nF3) is that of every element K with ``shape[K] == s``;
+    ``shape`` None: one block per element, in element order.  ``fdofs`` (ne, nF3): the facet dofs of every
+    element in the numbering of the product space."""
+
+    A_II: np.ndarray
+    A_VF: np.ndarray
+    fdofs: np.ndarray
+    shape: Optional[np.ndarray] = None
+
+    def per_element(self, arr: np.ndarray) -> np.ndarray:
+        """``arr`` (ns, ...), one entry per shape, as one entry per element (no copy without shapes)."""
+        return arr if self.shape is None else arr[self.shape]
+
+    @property
+    def nshapes(self) -> int:
+        return len(self.A_II)
+
+
+#: resolution of the shape key of :func:`shapes`: G rounded to 2^-44 of its largest entry (~6e-14 relative)
+SHAPE_BITS = 44
+
+
+def shapes(cls: np.ndarray, coef: np.ndarray):
+    """(representatives, shape index (ne,)) of the elements with equal ranking class ``cls`` and equal metric
+    coefficients ``coef`` (ne, 3) = (G_00, G_11, G_01), G = B^T B / |det B| (invariant under translation, rotation
+    and scaling of K, so the similar triangles of a bisection-refined mesh share one element block).  G is compared
+    after rounding to 2^-SHAPE_BITS of its largest entry: elements whose G differ by rounding only (bisection
+    midpoints are rounded) get the block of the representative, whose G differs from theirs by at most that
+    relative amount; the RT mass block changes by as much, the divergence and facet blocks not at all, so the
+    patch fluxes stay exactly equilibrated (the estimate stays a guaranteed bound).  None where every element
+    has its own shape (no gain)."""
+    top = np.abs(coef).max(axis=1)
+    e = np.floor(np.log2(top))
+    q = np.round(coef / np.exp2(e)[:, None] * 2.0 ** SHAPE_BITS).astype(np.int64)  # |q| < 2^(SHAPE_BITS + 1)
+    key = np.concatenate([cls[:, None].astype(np.int64), e[:, None].astype(np.int64), q], axis=1)
+    _, rep, index = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    if len(rep) == len(cls):
+        return None
+    return rep, index.ravel()
+
+
+def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[ElementBlocks]:
+    """The :class:`ElementBlocks` (A_II (nI x nI), A_VF (nV x nF3) and the facet dofs (nF3) in the numbering of
+    ``X``, one block per :func:`shapes` class) of the form of the module docstring, eps = 0, for ``X`` = broken
+    RT_q x P_q x facet P_q (the space of :func:`.flux._mixed_patch_problem`) on the triangles ``tri``, or None
+    (``tri`` None, another dof layout).  The RT and P_q rows are in the order of the dof numbers (those of K are
+    consecutive), the facet columns in the local order of K."""
     if tri is None:
         return None
     R, C, (nV, nQ) = reference_blocks(q)
@@ -194,13 +237,18 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[
     B, det = tri.B, tri.det
     G = np.einsum("kia,kib->kab", B, B) / det[:, None, None]        # B^T B / |det B|
     coef = np.stack([G[:, 0, 0], G[:, 1, 1], G[:, 0, 1]], axis=1)  # (ne, 3)
-    A_II = np.empty((ne, nI, nI))
-    A_VF = np.empty((ne, nV, nF3))
-    for c, sel in tri.classes():
-        A_II[sel] = C[c][:nI, :nI]
-        A_II[sel, :nV, :nV] = np.einsum("kt,tij->kij", coef[sel], R[c][:, :nV, :nV])
-        A_VF[sel] = C[c][:nV, nI:]
-    return A_II, A_VF, dofs[:, nI:].copy()
+    found = shapes(tri.cls, coef)
+    rep, index = (np.arange(ne), None) if found is None else found
+    cls, coef = tri.cls[rep], coef[rep]
+    A_II = np.empty((len(rep), nI, nI))
+    A_VF = np.empty((len(rep), nV, nF3))
+    for c in range(len(RANKINGS)):
+        sel = np.flatnonzero(cls == c)
+        if len(sel):
+            A_II[sel] = C[c][:nI, :nI]
+            A_II[sel, :nV, :nV] = np.einsum("kt,tij->kij", coef[sel], R[c][:, :nV, :nV])
+            A_VF[sel] = C[c][:nV, nI:]
+    return ElementBlocks(A_II, A_VF, dofs[:, nI:].copy(), index)
 
 
 def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bool):

@@ -60,6 +60,7 @@ import numpy as np
 from ngsolve import (H1, VOL, BilinearForm, CoefficientFunction, Discontinuous, ElementId, GridFunction,
                      LinearForm, TaskManager, dx)
 
+from .mixed_blocks import ElementBlocks
 from .opposite_edges import OppositeEdges
 
 __all__ = ["PatchSolver", "local_hats"]
@@ -131,9 +132,9 @@ class PatchSolver:
         the patch bilinear form (symmetric).
     ev : ndarray (ne, 3)
         vertex numbers of every element in the local order of ``Discontinuous(H1(order=1))``.
-    blocks : tuple, optional
-        (A_II, A_VF, facet dofs) of every element, e.g. from :func:`.mixed_blocks.mixed_element_blocks`
-        (None: from the assembly of ``bf``).
+    blocks : ElementBlocks, optional
+        the element blocks (A_II, A_VF, facet dofs), e.g. from :func:`.mixed_blocks.mixed_element_blocks` (one
+        per shape class of the elements); None: from the assembly of ``bf``, one per element.
     affine : AffineTriangles, optional
         the affine element maps (:mod:`.mixed_blocks`), for operators built from reference matrices.
     """
@@ -158,11 +159,15 @@ class PatchSolver:
             raise ValueError("broken RT and L2 spaces with the same number of dofs per element expected")
         nI = nV + nQ
         offQ, offF = V.ndof, V.ndof + Q.ndof
-        A_II, A_VF, fdofs = blocks if blocks is not None else _assembled_blocks(X, bf, ne, nV, nQ)
-        nF3 = fdofs.shape[1]
-        self.A_II = A_II
-        self.W = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ne, nQ, nF3))], axis=1))  # A_II^{-1} A_IF
-        S_K = -np.einsum("kvf,kvg->kfg", A_VF, self.W[:, :nV, :])  # -A_FI A_II^{-1} A_IF
+        local_order = blocks is not None  # reference blocks: facet dofs in K's local order (else sorted)
+        blocks = blocks if blocks is not None else ElementBlocks(*_assembled_blocks(X, bf, ne, nV, nQ))
+        A_II, A_VF, fdofs = blocks.A_II, blocks.A_VF, blocks.fdofs
+        nF3, ns = fdofs.shape[1], blocks.nshapes
+        self.blocks = blocks
+        # per element shape (one per element without shared shapes): A_II^{-1} A_IF, S_K = -A_FI A_II^{-1} A_IF
+        W = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ns, nQ, nF3))], axis=1))
+        S_K = blocks.per_element(-np.einsum("kvf,kvg->kfg", A_VF, W[:, :nV, :]))
+        self.W = blocks.per_element(W)
         self.nV, self.nQ, self.nI, self.nF3, self.offQ, self.offF = nV, nQ, nI, nF3, offQ, offF
         self.one_Q = q1.vec.FV().NumPy().reshape(ne, nQ).copy()  # coefficients of w = 1 on every K
         self.mass_Q = mq.reshape(ne, nQ)                           # (1, phi_j)_K
@@ -180,7 +185,7 @@ class PatchSolver:
         count = np.bincount(pair_a, minlength=nv)
         start = np.concatenate([[0], np.cumsum(count)])
         # the facet dofs of K at its local vertex i (E) and on the opposite edge (O, condensed per element)
-        self.elim = OppositeEdges(mesh, F, fdofs - offF, ev, S_K, ~free[fdofs], local_order=blocks is not None)
+        self.elim = OppositeEdges(mesh, F, fdofs - offF, ev, S_K, ~free[fdofs], local_order=local_order)
         fixed_O = self.elim.fixed_O[self.pair_K, self.pair_i]      # (npair,) Dirichlet opposite edge
         # patch-local numbering of the facet dofs at the vertex
         fd = np.take_along_axis(fdofs[self.pair_K], self.elim.E[self.pair_K, self.pair_i], axis=1)  # (npair, nE)
@@ -423,17 +428,16 @@ class PatchSolver:
             gE, gO = self.elim.rhs(g)  # the opposite edges eliminated per element (.opposite_edges)
             msum = self.elim.facet_sums(self._patch_loop(gE, nf), gO)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
-        if self.A_II_inv is None and self._calls >= self._inverse_from:
-            self.A_II_inv = np.linalg.inv(self.A_II)
+        blocks = self.blocks
+        if self.A_II_inv is None and (self._calls >= self._inverse_from or 2 * blocks.nshapes <= ne):
+            # the RT rows of A_II^{-1}: kept for the next calls, or cheap (shapes shared by several elements)
+            self.A_II_inv = blocks.per_element(np.linalg.inv(blocks.A_II)[:, :nV, :])
         if self.A_II_inv is None:
-            xb = np.linalg.solve(self.A_II, bsum.transpose(1, 2, 0))                  # (ne, nI, nf)
+            xb = np.linalg.solve(blocks.per_element(blocks.A_II), bsum.transpose(1, 2, 0))[:, :nV]  # (ne, nV, nf)
         else:
             xb = self.A_II_inv @ bsum.transpose(1, 2, 0)
-        out = []
-        for f in range(nf):
-            x = xb[:, :, f] - np.einsum("kif,kf->ki", self.W, msum[f])
-            out.append(x[:, :nV].copy())
-        return out
+        WV = self.W[:, :nV, :]
+        return [xb[:, :, f] - np.einsum("kif,kf->ki", WV, msum[f]) for f in range(nf)]
 
     def _compatibility(self):
         """(P, P^T, -1 / |T_a|): P sums over the (hat i, element K) pairs (column i ne + K) of every interior
