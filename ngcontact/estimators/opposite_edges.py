@@ -58,7 +58,7 @@ class OppositeEdges:
     """The elimination of the opposite edges for the condensed element matrices S_K of one mesh (see
     ``__init__``)."""
 
-    def __init__(self, mesh, F, fd, ev, S_K, fixed, local_order: bool):
+    def __init__(self, mesh, F, fd, ev, S_K, fixed, local_order: bool, shape=None):
         """Element-level elimination of the facet dofs of K on the edge opposite to its local vertex i.
 
         In the patch of vertex a the edge of K opposite to a lies on the patch boundary: its facet dofs belong to
@@ -71,7 +71,9 @@ class OppositeEdges:
         those dofs; it changes the P_q part of the patch solution by a constant, not the flux.)
 
         ``fd``: facet dofs of K (numbering of F; in K's local order if ``local_order``, else sorted), ``fixed``:
-        which of them are Dirichlet.  Sets ``E`` (ne, 3, nE)
+        which of them are Dirichlet; ``S_K`` one matrix per element, or per element shape with ``shape`` (ne,)
+        the shape of every element (:class:`.mixed_blocks.ElementBlocks`: the blocks are then formed and
+        factorized once per shape and local vertex, where the column layout is the same for all elements).  Sets ``E`` (ne, 3, nE)
         and ``O`` (ne, 3, nO), the columns of K's facet dofs at / opposite to local vertex i, ``fixed_O``
         (ne, 3), ``S_pair`` (ne, 3, nE, nE) and the hat-major arrays of :meth:`rhs`.  Where the layout of the
         facet dofs is not the one :func:`_opposite_vertices` checks, or an opposite edge is partly fixed, nothing
@@ -100,8 +102,10 @@ class OppositeEdges:
             O = np.zeros((ne, 3, 0), dtype=E.dtype)
             fixed_O = np.zeros((ne, 3), dtype=bool)
         same = bool(np.all(E == E[:1])) and bool(np.all(O == O[:1]))  # one column pattern (local order)
+        if shape is not None and not same:
+            S_K, shape = S_K[shape], None
 
-        def block(R, C):  # (ne, 3, len R, len C): S_K[K][R[K, i]][:, C[K, i]]
+        def block(R, C):  # (ne or ns, 3, len R, len C): S_K[K][R[K, i]][:, C[K, i]]
             if same:
                 return np.stack([S_K[:, R[0, i][:, None], C[0, i][None, :]] for i in range(3)], axis=1)
             return np.take_along_axis(np.take_along_axis(S_K[:, None], R[:, :, :, None], axis=2), C[:, :, None, :],
@@ -109,13 +113,21 @@ class OppositeEdges:
 
         S_EE, S_EO, S_OE, S_OO = block(E, E), block(E, O), block(O, E), block(O, O)
         nO = O.shape[2]
-        S_OO[fixed_O] = np.eye(nO)
+        if shape is None:
+            S_OO[fixed_O] = np.eye(nO)
         S_OO_inv = np.linalg.inv(S_OO) if nO else S_OO
-        S_OO_inv[fixed_O] = 0.0
-        C = S_EO @ S_OO_inv                                                     # (ne, 3, nE, nO)
+        if shape is None:
+            S_OO_inv[fixed_O] = 0.0
+        C = S_EO @ S_OO_inv                                                     # (ne or ns, 3, nE, nO)
+        S_pair = S_EE - C @ S_OE if nO else S_EE
+        if shape is not None:  # per element (copies), then the Dirichlet opposite edges: m_O = 0, S' = S_EE
+            S_EE, S_OE, S_OO_inv, C, S_pair = (M[shape] for M in (S_EE, S_OE, S_OO_inv, C, S_pair))
+            S_pair[fixed_O] = S_EE[fixed_O]
+            C[fixed_O] = 0.0
+            S_OO_inv[fixed_O] = 0.0
         self.E, self.O, self.fixed_O = E, O, fixed_O
         self.ne, self.nF3, self.nE, self.nO = ne, nF3, E.shape[2], nO
-        self.S_pair = S_EE - C @ S_OE if nO else S_EE
+        self.S_pair = S_pair
         # hat-major (3, ne, ...) for the right-hand sides (nf, 3, ne, nF3) of PatchSolver.solve
         self._Et, self._Ot = E.transpose(1, 0, 2).copy(), O.transpose(1, 0, 2).copy()
         self._Ct = C.transpose(1, 0, 2, 3).copy()

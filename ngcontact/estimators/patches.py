@@ -166,7 +166,7 @@ class PatchSolver:
         self.blocks = blocks
         # per element shape (one per element without shared shapes): A_II^{-1} A_IF, S_K = -A_FI A_II^{-1} A_IF
         W = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ns, nQ, nF3))], axis=1))
-        S_K = blocks.per_element(-np.einsum("kvf,kvg->kfg", A_VF, W[:, :nV, :]))
+        S_K = -np.einsum("kvf,kvg->kfg", A_VF, W[:, :nV, :])                       # per shape
         self.W = blocks.per_element(W)
         self.nV, self.nQ, self.nI, self.nF3, self.offQ, self.offF = nV, nQ, nI, nF3, offQ, offF
         self.one_Q = q1.vec.FV().NumPy().reshape(ne, nQ).copy()  # coefficients of w = 1 on every K
@@ -185,7 +185,8 @@ class PatchSolver:
         count = np.bincount(pair_a, minlength=nv)
         start = np.concatenate([[0], np.cumsum(count)])
         # the facet dofs of K at its local vertex i (E) and on the opposite edge (O, condensed per element)
-        self.elim = OppositeEdges(mesh, F, fdofs - offF, ev, S_K, ~free[fdofs], local_order=local_order)
+        self.elim = OppositeEdges(mesh, F, fdofs - offF, ev, S_K, ~free[fdofs], local_order=local_order,
+                                 shape=blocks.shape)
         fixed_O = self.elim.fixed_O[self.pair_K, self.pair_i]      # (npair,) Dirichlet opposite edge
         # patch-local numbering of the facet dofs at the vertex
         fd = np.take_along_axis(fdofs[self.pair_K], self.elim.E[self.pair_K, self.pair_i], axis=1)  # (npair, nE)
