@@ -102,3 +102,18 @@ def test_reference_flux_operators_equal_assembled(q, p):
         for v in (U[:, 0], U):
             assert np.abs(ref @ v - mat @ v).max() <= 1e-13 * np.abs(mat @ v).max()
     assert flux_operators(None, solver.Y, q, space, True) is None
+
+
+def test_shape_blocks_apply_like_per_element_products():
+    """ElementBlocks.apply (shapes stacked by their numbers of elements) equals the product with the matrices
+    gathered per element, for shapes with 1, 2 and 5 elements and for one block per element."""
+    from ngcontact.estimators.mixed_blocks import ElementBlocks
+
+    rng = np.random.default_rng(3)
+    shape = rng.permutation(np.repeat(np.arange(6), [1, 2, 5, 2, 1, 5]))
+    M, X = rng.standard_normal((6, 4, 3)), rng.standard_normal((len(shape), 3, 2))
+    blocks = ElementBlocks(A_II=np.zeros((6, 1, 1)), A_VF=None, fdofs=None, shape=shape)
+    assert np.abs(blocks.apply(M, X) - np.matmul(blocks.per_element(M), X)).max() <= 1e-15
+    M1 = rng.standard_normal((len(shape), 4, 3))
+    single = ElementBlocks(A_II=np.zeros((len(shape), 1, 1)), A_VF=None, fdofs=None)
+    assert np.array_equal(single.apply(M1, X), np.matmul(M1, X))

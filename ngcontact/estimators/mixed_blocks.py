@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Dict, Optional, Tuple
 
 import numpy as np
@@ -190,6 +191,30 @@ class ElementBlocks:
     def nshapes(self) -> int:
         return len(self.A_II)
 
+    @cached_property
+    def _groups(self):
+        """[(shapes (m,), their elements (m, n))] for the shapes with n elements, one entry per n."""
+        order = np.argsort(self.shape, kind="stable")
+        count = np.bincount(self.shape, minlength=self.nshapes)
+        start = np.concatenate([[0], np.cumsum(count)])
+        out = []
+        for n in np.unique(count[count > 0]):
+            sid = np.flatnonzero(count == n)
+            out.append((sid, order[start[sid][:, None] + np.arange(n)]))
+        return out
+
+    def apply(self, M: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """(ne, r, k): M[shape of K] @ X[K] for every element K, with M (ns, r, c) one matrix per shape and
+        X (ne, c, k).  The shapes' matrices are applied to the stacked elements of the shapes with equal
+        numbers of elements (one batched product per such number), not gathered per element (ne r c entries of
+        fresh memory cost more than the product)."""
+        if self.shape is None:
+            return np.matmul(M, X)
+        out = np.empty((X.shape[0], M.shape[1], X.shape[2]))
+        for sid, elems in self._groups:
+            out[elems] = np.matmul(M[sid][:, None], X[elems])
+        return out
+
 
 #: resolution of the shape key of :func:`shapes`: G rounded to 2^-44 of its largest entry (~6e-14 relative)
 SHAPE_BITS = 44
@@ -202,14 +227,14 @@ def shapes(cls: np.ndarray, coef: np.ndarray):
     after rounding to 2^-SHAPE_BITS of its largest entry: elements whose G differ by rounding only (bisection
     midpoints are rounded) get the block of the representative, whose G differs from theirs by at most that
     relative amount; the RT mass block changes by as much, the divergence and facet blocks not at all, so the
-    patch fluxes stay exactly equilibrated (the estimate stays a guaranteed bound).  None where every element
-    has its own shape (no gain)."""
+    patch fluxes stay exactly equilibrated (the estimate stays a guaranteed bound).  None where there are more
+    shapes than half the elements (little to gain: one block per element then)."""
     top = np.abs(coef).max(axis=1)
     e = np.floor(np.log2(top))
     q = np.round(coef / np.exp2(e)[:, None] * 2.0 ** SHAPE_BITS).astype(np.int64)  # |q| < 2^(SHAPE_BITS + 1)
     key = np.concatenate([cls[:, None].astype(np.int64), e[:, None].astype(np.int64), q], axis=1)
     _, rep, index = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    if len(rep) == len(cls):
+    if 2 * len(rep) > len(cls):
         return None
     return rep, index.ravel()
 

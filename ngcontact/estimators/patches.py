@@ -9,7 +9,9 @@ right-hand side term multiplied by the hat function psi_a of the patch), compute
    zero, so the element matrix of K is the global matrix restricted to the dofs of K (RT and P_q dofs
    of K are element-local, the facet dofs of its edges couple only through the <tau.n, m> terms of K);
 2. per element, the interior unknowns I = (RT_q(K), P_q(K)) are condensed once:
-   S_K = -A_FI A_II^{-1} A_IF on the 3(q + 1) facet dofs of K (batched LU of ne small matrices);
+   S_K = -A_FI A_II^{-1} A_IF on the 3(q + 1) facet dofs of K (batched LU of small matrices, one per
+   element shape where similar triangles share their blocks, :class:`.mixed_blocks.ElementBlocks`,
+   whose ``apply`` multiplies the elements of each shape by its matrix without per-element copies);
 3. the right-hand side of patch a on K is the element vector of the linear form with psi_a, i.e.
    with the barycentric coordinate of the local vertex of K that is a: three assemblies (one per
    local vertex) give all of them; they are condensed like the matrix;
@@ -164,10 +166,11 @@ class PatchSolver:
         A_II, A_VF, fdofs = blocks.A_II, blocks.A_VF, blocks.fdofs
         nF3, ns = fdofs.shape[1], blocks.nshapes
         self.blocks = blocks
-        # per element shape (one per element without shared shapes): A_II^{-1} A_IF, S_K = -A_FI A_II^{-1} A_IF
+        # per element shape (one per element without shared shapes): W = A_II^{-1} A_IF, S_K = -A_FI W
         W = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ns, nQ, nF3))], axis=1))
-        S_K = -np.einsum("kvf,kvg->kfg", A_VF, W[:, :nV, :])                       # per shape
-        self.W = blocks.per_element(W)
+        S_K = -np.einsum("kvf,kvg->kfg", A_VF, W[:, :nV, :])
+        self.W_t = np.ascontiguousarray(W.transpose(0, 2, 1))                         # (ns, nF3, nI)
+        self.W_V = np.ascontiguousarray(W[:, :nV, :])                                 # (ns, nV, nF3)
         self.nV, self.nQ, self.nI, self.nF3, self.offQ, self.offF = nV, nQ, nI, nF3, offQ, offF
         self.one_Q = q1.vec.FV().NumPy().reshape(ne, nQ).copy()  # coefficients of w = 1 on every K
         self.mass_Q = mq.reshape(ne, nQ)                           # (1, phi_j)_K
@@ -414,8 +417,10 @@ class PatchSolver:
         if P.shape[0]:  # kappa of the patch of every (i, K) pair (zero outside the interior patches)
             kappa = Pt @ (scale[:, None] * (P @ tested.reshape(nf, 3 * ne).T))      # (3 ne, nf)
             b[:, :, :, nV:] += kappa.T.reshape(nf, 3, ne)[:, :, :, None] * self.mass_Q[None, None]
-        # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i
-        g = -np.matmul(b.reshape(nf * 3, ne, nI).transpose(1, 0, 2), self.W).transpose(1, 0, 2).reshape(nf, 3, ne, nF3)
+        # condensed right-hand sides g_K^i = -A_FI A_II^{-1} b_K^i = -W^T b_K^i
+        blocks = self.blocks
+        g = -blocks.apply(self.W_t, b.reshape(nf * 3, ne, nI).transpose(1, 2, 0)).transpose(2, 0, 1).reshape(
+            nf, 3, ne, nF3)
         ops = self._patch_operators()
         if ops is None and self._keep_inverses and self._calls >= self._inverse_from:
             self._form_inverses()
@@ -429,16 +434,16 @@ class PatchSolver:
             gE, gO = self.elim.rhs(g)  # the opposite edges eliminated per element (.opposite_edges)
             msum = self.elim.facet_sums(self._patch_loop(gE, nf), gO)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
-        blocks = self.blocks
-        if self.A_II_inv is None and (self._calls >= self._inverse_from or 2 * blocks.nshapes <= ne):
-            # the RT rows of A_II^{-1}: kept for the next calls, or cheap (shapes shared by several elements)
-            self.A_II_inv = blocks.per_element(np.linalg.inv(blocks.A_II)[:, :nV, :])
-        if self.A_II_inv is None:
-            xb = np.linalg.solve(blocks.per_element(blocks.A_II), bsum.transpose(1, 2, 0))[:, :nV]  # (ne, nV, nf)
+        if self.A_II_inv is None and (self._calls >= self._inverse_from or blocks.shape is not None):
+            # the RT rows of A_II^{-1} per shape: kept for the next calls, or cheap (shapes shared by elements)
+            self.A_II_inv = np.ascontiguousarray(np.linalg.inv(blocks.A_II)[:, :nV, :])
+        if self.A_II_inv is None:  # one block per element
+            xb = np.linalg.solve(blocks.A_II, bsum.transpose(1, 2, 0))[:, :nV]          # (ne, nV, nf)
         else:
-            xb = self.A_II_inv @ bsum.transpose(1, 2, 0)
-        WV = self.W[:, :nV, :]
-        return [xb[:, :, f] - np.einsum("kif,kf->ki", WV, msum[f]) for f in range(nf)]
+            xb = blocks.apply(self.A_II_inv, bsum.transpose(1, 2, 0))
+        # x_V = A_II^{-1} sum_a b^a - W_V sum_a m^a (RT part)
+        x = xb - blocks.apply(self.W_V, msum.transpose(1, 2, 0))
+        return [x[:, :, f].copy() for f in range(nf)]
 
     def _compatibility(self):
         """(P, P^T, -1 / |T_a|): P sums over the (hat i, element K) pairs (column i ne + K) of every interior
