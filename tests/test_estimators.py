@@ -539,3 +539,56 @@ def test_negative_part_of_a_nonnegative_p1_function_is_zero_without_quadrature()
     lam.vec.FV().NumPy()[:] = 0.0
     lam.vec.FV().NumPy()[mesh.nv] = 1.0
     assert negative_part_squares(ig, lam).max() > 0.0
+
+
+def test_concentrated_multiplier_against_explicit_candidates():
+    """concentrated_multiplier (candidate sums from products with the shape matrix) returns lam~ >= 0 with the
+    element means of lam^, the defect (h/pi)^2 ||lam^ - lam~||_K^2 summed directly, and the choice of the
+    search over explicitly formed candidates c = m_K phi / mean_K(phi): the same objective value."""
+    import math
+    from types import SimpleNamespace
+
+    from ngsolve import TRIG, IntegrationRule
+
+    from ngcontact.estimators.nonnegative import concentrated_multiplier
+
+    ir = IntegrationRule(TRIG, 8)
+    ref = np.array([ip.point[:2] for ip in ir])
+    bary = np.stack([ref[:, 0], ref[:, 1], 1 - ref[:, 0] - ref[:, 1]])
+    rng = np.random.default_rng(7)
+    n = 400
+    det = rng.uniform(1e-4, 1e-2, n)
+    W = np.array([ip.weight for ip in ir])[None] * det[:, None]
+    lam = np.maximum(rng.standard_normal((n, len(ref))) + 0.7, 0.0)
+    lam[:50] = 0.0
+    # gaps small near a random vertex of each element: concentrating there pays
+    gap = 0.1 * rng.random(n)[:, None] * (bary[rng.integers(0, 3, n)] + 0.05 * rng.random((n, len(ref))))
+    h, C_mu, scale = np.sqrt(det), 1.3, 2e-3
+    qa = SimpleNamespace(W=W, bary=bary)
+    lam_t, loc2 = concentrated_multiplier(qa, lam, gap, h, C_mu, scale)
+    area = W.sum(axis=1)
+    assert lam_t.min() >= 0.0
+    assert np.abs((W * lam_t).sum(axis=1) - (W * lam).sum(axis=1)).max() <= 1e-12 * np.abs(W * lam).sum(axis=1).max()
+    hk = (h / math.pi) ** 2
+    assert np.array_equal(loc2, hk * (W * (lam - lam_t) ** 2).sum(axis=1))
+    moved = np.abs(lam_t - lam).max(axis=1) > 0
+    assert 50 < moved.sum() < n - 50  # the search moves some elements and keeps others
+
+    def objective(lt):
+        return (scale + C_mu * math.sqrt((hk * (W * (lam - lt) ** 2).sum(axis=1)).sum())) ** 2 + 2.0 * (W * lt * gap).sum()
+
+    # explicit search: candidates formed one by one, the same price sweep
+    m = (W * lam).sum(axis=1) / area
+    cands = [lam] + [m[:, None] * phi[None] / ((W * phi[None]).sum(axis=1) / area)[:, None]
+                     for k in (1, 2, 4) for phi in [bary[i] ** k for i in range(3)] + [(1 - bary[i]) ** k for i in range(3)]]
+    C = np.array([(W * c * gap).sum(axis=1) for c in cands])
+    X = np.array([hk * (W * (lam - c) ** 2).sum(axis=1) for c in cands])
+    cols = np.arange(n)
+    best = lam
+    for t in np.logspace(-3, 6, 46) * C_mu / scale * np.abs(C).max() / X.max():
+        idx = np.argmin(2.0 * C + t * X, axis=0)
+        trial = np.array([cands[j][i] for i, j in zip(cols, idx)])
+        if objective(trial) < objective(best):
+            best = trial
+    assert objective(best) < objective(lam)
+    assert objective(lam_t) == pytest.approx(objective(best), rel=1e-12)

@@ -138,14 +138,20 @@ def concentrated_multiplier(qa: QuadratureArrays, lam_vals, gap_vals, h, C_mu: f
     if not len(active):
         return lam_t, loc2
     Wa, La, Ga, ma, areaa, ha = W[active], lam_vals[active], gap_vals[active], m[active], area[active], h[active]
-    cands = [La]
-    for k in exponents:
-        for i in range(6):  # vertex i: b_i^k; edge opposite to vertex i - 3: (1 - b_{i-3})^k
-            b = qa.bary[i] ** k if i < 3 else (1.0 - qa.bary[i - 3]) ** k
-            mean_b = (Wa * b[None, :]).sum(axis=1) / areaa
-            cands.append(ma[:, None] * b[None, :] / mean_b[:, None])
-    C = np.array([(Wa * c * Ga).sum(axis=1) for c in cands])             # (lam~, g)_K
-    X = np.array([(ha / math.pi) ** 2 * (Wa * (La - c) ** 2).sum(axis=1) for c in cands])  # defects^2
+    # the candidates c_j = s_j phi_j (j >= 1), s_j = m_K / mean_K(phi_j), and c_0 = lam^; their sums
+    # (c_j, g)_K and ||lam^ - c_j||_K^2 for the search from products with the shape matrix Phi (nc, nq)
+    # (vertex i: b_i^k; edge opposite to vertex i - 3: (1 - b_{i-3})^k)
+    Phi = np.array([qa.bary[i] ** k if i < 3 else (1.0 - qa.bary[i - 3]) ** k
+                    for k in exponents for i in range(6)])
+    S = ma[:, None] * areaa[:, None] / (Wa @ Phi.T)                                 # (n, nc)
+    WL = Wa * La
+    hk = (ha / math.pi) ** 2
+    C = np.concatenate([[(WL * Ga).sum(axis=1)], (S * ((Wa * Ga) @ Phi.T)).T])      # (1 + nc, n): (lam~, g)_K
+    # defects^2 expanded (rounding of the order of eps ||lam^||_K^2: the search only; the defect of the
+    # chosen candidate is summed directly below), clamped at 0
+    XL = (WL * La).sum(axis=1)
+    X = hk[:, None] * np.maximum(XL[:, None] - 2.0 * S * (WL @ Phi.T) + S * S * (Wa @ (Phi * Phi).T), 0.0)
+    X = np.concatenate([np.zeros((1, len(active))), X.T])
     cols = np.arange(len(active))
 
     def objective(idx):
@@ -161,10 +167,9 @@ def concentrated_multiplier(qa: QuadratureArrays, lam_vals, gap_vals, h, C_mu: f
         val = objective(idx)
         if val < best_val:
             best, best_val = idx, val
+    moved = best > 0
     chosen = np.array(La)
-    for j in range(1, len(cands)):
-        sel = best == j
-        chosen[sel] = cands[j][sel]
+    chosen[moved] = S[moved, best[moved] - 1][:, None] * Phi[best[moved] - 1]
     lam_t[active] = chosen
-    loc2[active] = X[best, cols]
+    loc2[active] = hk * (Wa * (La - chosen) ** 2).sum(axis=1)
     return lam_t, loc2
