@@ -102,3 +102,17 @@ def test_failing_plots_hook_keeps_the_data_and_says_incomplete(tmp_path):
     with pytest.raises(TypeError, match="plots must be None or a callable"):
         write_run(_result([{"level": 0, "ndof": 3}], []), tmp_path / "other", plots=True)
     assert not (tmp_path / "other").exists()
+
+
+def test_read_history_keeps_names_and_numbers(tmp_path):
+    """history.csv round trip: ints, floats, NaN (empty cell) and names (the multiplier candidate) as written."""
+    from ngcontact.results import HISTORY_COLUMNS, read_history
+    from ngcontact.results.files import csv_text
+
+    rows = [{"level": 0, "ndof": 12, "multiplier": "shape", "multiplier_candidates": 2, "eta": 0.25},
+            {"level": 1, "ndof": 30, "multiplier": "fit", "multiplier_candidates": 1, "eta": float("nan")}]
+    (tmp_path / "history.csv").write_text(csv_text(rows, HISTORY_COLUMNS))
+    back = read_history(tmp_path / "history.csv")
+    assert [r["multiplier"] for r in back] == ["shape", "fit"]
+    assert [r["multiplier_candidates"] for r in back] == [2, 1] and back[0]["eta"] == 0.25
+    assert back[1]["eta"] != back[1]["eta"] and list(back[0]) == ["level", "ndof", "multiplier", "multiplier_candidates", "eta"]

@@ -14,15 +14,25 @@ gives V_h^old in V_h^new).
 Stopping: eta <= target_eta, the next mesh would have more than max_ndof DOFs, the cumulative
 wall time exceeds max_time, or max_levels levels.
 
-Every level gives one history.csv row (the columns of uniform runs, plus ``marked`` and
-``time_mark_s``); ``time_mesh_s`` of level j is the copy + bisection producing T_j,
+Multiplier candidates.  For p >= 2 the estimate computes two guaranteed bounds, one per multiplier candidate,
+and keeps the smaller (:mod:`ngcontact.estimators.bound`, "Multiplier").  Along an adaptive run the ratio of
+the two changes slowly from level to level; :class:`CandidateSchedule` stops computing the candidate that gave a
+bound more than ``ratio`` times the kept one on the last ``after`` levels where both were computed, and computes
+both again on every ``recheck``-th level.  The estimate of a level that computes one candidate is that
+candidate's guaranteed bound (the same number the pair would have kept unless the order of the two changed
+since the last check).  The columns ``multiplier`` (the kept candidate) and ``multiplier_candidates`` (how many
+were computed) say which it was.
+
+Every level gives one history.csv row (the columns of uniform runs, plus ``marked``, the multiplier columns
+and ``time_mark_s``); ``time_mesh_s`` of level j is the copy + bisection producing T_j,
 ``time_mark_s`` the marking on T_{j-1}, and ``rate_energy`` / ``rate_eta`` are rates with
 respect to ndof^{-1/2} (the "h" of a uniform mesh), so that the optimal value is p.
 """
 from __future__ import annotations
 
 import time
-from typing import Callable, Optional
+from dataclasses import dataclass, field, replace
+from typing import Callable, List, Optional, Tuple
 
 import numpy as np
 import ngsolve
@@ -31,7 +41,40 @@ from ..domains import DIRICHLET, mesh_size
 from ..marking import mark
 from .level import RunResult, iteration_callback, level_row, record_level, solve_level, status, update_rates
 
-__all__ = ["run_adaptive", "refine", "interior_nodes"]
+__all__ = ["run_adaptive", "refine", "interior_nodes", "CandidateSchedule"]
+
+
+@dataclass
+class CandidateSchedule:
+    """Which multiplier candidates the estimate of the next adaptive level computes (module docstring).
+
+    ``ratio``: a candidate whose bound exceeded the kept one by more than this factor on the last ``after`` levels
+    where both were computed (the same one kept on each) is skipped; ``recheck``: both are computed at least on
+    every recheck-th level."""
+
+    ratio: float = 1.5
+    after: int = 2
+    recheck: int = 4
+    checks: List[Tuple[str, float]] = field(default_factory=list)  # (kept, other bound / kept bound)
+    skipped: int = 0  # levels since the last one that computed both
+
+    def options(self, opts):
+        """The estimator options of the next level: ``opts``, or ``opts`` with the kept candidate forced."""
+        if opts.multiplier is not None or len(self.checks) < self.after or self.skipped >= self.recheck - 1:
+            return opts
+        last = self.checks[-self.after:]
+        if len({kept for kept, _ in last}) == 1 and all(r > self.ratio for _, r in last):
+            return replace(opts, multiplier=last[-1][0])
+        return opts
+
+    def record(self, est) -> None:
+        """Account for the estimate of a level (both candidates computed or one)."""
+        if len(est.eta_candidates) == 2:
+            other = max(est.eta_candidates.values())
+            self.checks.append((est.multiplier, other / est.eta if est.eta > 0 else 1.0))
+            self.skipped = 0
+        else:
+            self.skipped += 1
 
 
 def refine(mesh, marked) -> ngsolve.Mesh:
@@ -84,13 +127,22 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
     t0 = time.perf_counter()
     mesh = problem.domain.mesh(0)
     t_mesh = time.perf_counter() - t0
+    schedule = CandidateSchedule()
     for level in range(ad.max_levels):
         if level > 0:  # the refinement and marking of the previous level count for this one
             t0 = time.perf_counter() - t_mesh - t_mark
+        est_opts = schedule.options(options.estimator_options)
         out = solve_level(problem, mesh, options, previous=previous, initial_guess=scene.initial_guess,
-                          with_estimate=True, callback=iteration_callback(result, level, newton_callback))
+                          with_estimate=True, callback=iteration_callback(result, level, newton_callback),
+                          estimator_options=est_opts)
         est = out.estimate
-        row = level_row(level, out, options, h=mesh_size(mesh), head={"marked": 0 if marked is None else len(marked)},
+        if est_opts.multiplier is not None and est_opts is not options.estimator_options:
+            est.multiplier = est_opts.multiplier  # the schedule's single candidate
+        schedule.record(est)
+        head = {"marked": 0 if marked is None else len(marked)}
+        if est.multiplier:  # p >= 2 with two candidates: which was kept, how many were computed
+            head.update(multiplier=est.multiplier, multiplier_candidates=len(est.eta_candidates) or 1)
+        row = level_row(level, out, options, h=mesh_size(mesh), head=head,
                         times={"time_mesh_s": t_mesh, "time_mark_s": t_mark})
         result.rows.append(row)
         record_level(result, level, out)

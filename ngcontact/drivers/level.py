@@ -101,8 +101,9 @@ def newton_iterates(disc, x0, y0, *, cfun: str = "min", tol: float = 1e-10, maxi
 
 
 def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, with_estimate: bool = False,
-                callback: Optional[Callable] = None) -> LevelOutcome:
-    """Discretize ``problem`` on ``mesh``, solve, evaluate errors (and the estimate).
+                callback: Optional[Callable] = None, estimator_options=None) -> LevelOutcome:
+    """Discretize ``problem`` on ``mesh``, solve, evaluate errors (and the estimate, with ``estimator_options``
+    if given, else ``options.estimator_options``).
 
     ``previous``: (disc, x, y) of the coarser level, prolongated when ``options.start == 'nested'``;
     otherwise the start is ``initial_guess`` (the scene's, or None).  ``previous`` may also be handed over as
@@ -128,7 +129,8 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     t3 = time.perf_counter()
     est = None
     if with_estimate:
-        est = estimate(disc, sol.x, sol.y, options.estimator_options, err_energy=errs.get("err_energy"), errors=False)
+        est = estimate(disc, sol.x, sol.y, estimator_options or options.estimator_options,
+                       err_energy=errs.get("err_energy"), errors=False)
     t4 = time.perf_counter()
     return LevelOutcome(disc, sol, errs, comp, est, t1 - t0, t2 - t1, t3 - t2, t4 - t3)
 

@@ -156,6 +156,8 @@ class Estimate:
     multiplier : str
         the multiplier choice of the equilibration when :func:`estimate` chose between two ("contact",
         "fit" or "shape", see ``multiplier`` there); empty otherwise.
+    eta_candidates : dict
+        the bound of each candidate when :func:`estimate` chose between two (name -> eta); empty otherwise.
     """
 
     fields: Tuple[str, ...]
@@ -185,6 +187,7 @@ class Estimate:
     eta_direct: float = float("inf")
     theta_contact: float = 0.0
     multiplier: str = ""
+    eta_candidates: dict = field(default_factory=dict)
 
     @property
     def i_eff(self) -> float:
@@ -298,6 +301,7 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
         both = [_bound(sv, q, opts, fl, shared) for fl in fluxes]
         est = min(both, key=lambda e: e.eta)
         est.multiplier = pair[0] if est is both[0] else pair[1]
+        est.eta_candidates = {m: e.eta for m, e in zip(pair, both)}
         est.time_flux = fluxes[0].time if opts.batched else sum(fl.time for fl in fluxes)
     else:
         if flux is None:

@@ -37,6 +37,10 @@ ndof                DOFs as counted in [CAMWA21]: fem (fields + 1) x interior no
 ndof_sc             hho: size of the statically condensed system (face unknowns)
 nodes               interior Lagrange nodes per field
 marked              --adaptive: elements marked on the previous level (0 on level 0)
+multiplier          --adaptive, p >= 2: the multiplier candidate whose bound the estimate kept ("contact",
+                    "fit", "shape"; ngcontact.estimators.bound, "Multiplier")
+multiplier_candidates  --adaptive, p >= 2: candidates the level's estimate computed (2, or 1 where the
+                    schedule of ngcontact.drivers.adaptive skipped the one that lost by a wide margin)
 err_energy          (sum_a mu_a ||grad(u_a - u_ah)||^2)^(1/2)      [exact only]
 rate_energy         log(e_{j-1}/e_j) / log(h_{j-1}/h_j)              [exact only]
 err_max_nodal       max over nodes |u_a(x_l) - u_ah(x_l)|           [exact only]

@@ -17,7 +17,8 @@ __all__ = ["KEY_COLUMNS", "HISTORY_COLUMNS", "csv_text", "json_value", "read_his
 KEY_COLUMNS = ("level", "n", "t")
 
 HISTORY_COLUMNS = [
-    *KEY_COLUMNS, "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "err_energy", "rate_energy", "err_max_nodal",
+    *KEY_COLUMNS, "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "multiplier", "multiplier_candidates",
+    "err_energy", "rate_energy", "err_max_nodal",
     "err_jump", "newton_its", "newton_converged", "res_final", "certified", "cert_penetration", "cert_negativity",
     "cert_slackness", "cert_tol", "newton_remedies", "newton_balanced",
     "eps_lin_final", "eps_disc_final", "active_nodes", "linear_size",
@@ -68,7 +69,7 @@ def csv_text(rows, columns=None) -> str:
 
 
 def read_history(path) -> list:
-    """Rows of a history.csv or newton.csv as dicts of ints / floats in the file's column order
+    """Rows of a history.csv or newton.csv as dicts of ints / floats (names: str) in the file's column order
     (empty cells: nan; the time ``t``: always a float)."""
     out = []
     with open(path) as fh:
@@ -83,7 +84,10 @@ def read_history(path) -> list:
                     try:
                         row[k] = int(v)
                     except ValueError:
-                        row[k] = float(v)
+                        try:
+                            row[k] = float(v)
+                        except ValueError:  # a name (e.g. the multiplier candidate)
+                            row[k] = v
             out.append(row)
     return out
 
