@@ -20,6 +20,10 @@ The hat-weighted flux operators of the patch right-hand sides (:func:`flux_opera
 degree p) transform the same way: their RT rows are reference rows, their P_q rows a combination of two
 reference matrices per element.
 
+Similar triangles share their blocks: :func:`shapes` groups the elements by ranking class and G (rounded to
+2^-SHAPE_BITS relative), and :class:`ElementBlocks` keeps one block per shape (bisection-refined meshes have
+far fewer shapes than elements) and applies per-shape matrices to the stacked elements of each shape.
+
 Element matrices and operators from here and from NGSolve's assembly agree to rounding
 (``tests/test_mixed_blocks.py``); :class:`AffineTriangles` is None where the premises do not hold (curved
 elements, a triangle with det B <= 0), the functions return None then or for another dof layout, and the
