@@ -36,7 +36,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Dict, Optional, Tuple
+from typing import Dict, Optional
 
 import numpy as np
 from ngsolve import (H1, HDiv, L2, BilinearForm, CoefficientFunction, ElementId, FacetFESpace, Mesh, VOL, div, dx,
@@ -165,10 +165,15 @@ class AffineTriangles:
 
     def classes(self):
         """(class index, its elements) for the classes present."""
-        for c in range(len(RANKINGS)):
-            sel = np.flatnonzero(self.cls == c)
-            if len(sel):
-                yield c, sel
+        return _class_groups(self.cls)
+
+
+def _class_groups(cls: np.ndarray):
+    """(ranking class, the indices with that class) for the classes present in ``cls``."""
+    for c in range(len(RANKINGS)):
+        sel = np.flatnonzero(cls == c)
+        if len(sel):
+            yield c, sel
 
 
 def _element_dofs(space, ne: int) -> np.ndarray:
@@ -271,12 +276,10 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[
     cls, coef = tri.cls[rep], coef[rep]
     A_II = np.empty((len(rep), nI, nI))
     A_VF = np.empty((len(rep), nV, nF3))
-    for c in range(len(RANKINGS)):
-        sel = np.flatnonzero(cls == c)
-        if len(sel):
-            A_II[sel] = C[c][:nI, :nI]
-            A_II[sel, :nV, :nV] = np.einsum("kt,tij->kij", coef[sel], R[c][:, :nV, :nV])
-            A_VF[sel] = C[c][:nV, nI:]
+    for c, sel in _class_groups(cls):
+        A_II[sel] = C[c][:nI, :nI]
+        A_II[sel, :nV, :nV] = np.einsum("kt,tij->kij", coef[sel], R[c][:, :nV, :nV])
+        A_VF[sel] = C[c][:nV, nI:]
     return ElementBlocks(A_II, A_VF, dofs[:, nI:].copy(), index)
 
 

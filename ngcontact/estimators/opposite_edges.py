@@ -73,11 +73,11 @@ class OppositeEdges:
         ``fd``: facet dofs of K (numbering of F; in K's local order if ``local_order``, else sorted), ``fixed``:
         which of them are Dirichlet; ``S_K`` one matrix per element, or per element shape with ``shape`` (ne,)
         the shape of every element (:class:`.mixed_blocks.ElementBlocks`: the blocks are then formed and
-        factorized once per shape and local vertex, where the column layout is the same for all elements).  Sets ``E`` (ne, 3, nE)
-        and ``O`` (ne, 3, nO), the columns of K's facet dofs at / opposite to local vertex i, ``fixed_O``
-        (ne, 3), ``S_pair`` (ne, 3, nE, nE) and the hat-major arrays of :meth:`rhs`.  Where the layout of the
-        facet dofs is not the one :func:`_opposite_vertices` checks, or an opposite edge is partly fixed, nothing
-        is eliminated (E: all columns, nO = 0)."""
+        factorized once per shape and local vertex, where the column layout is the same for all elements).
+        Sets ``E`` (ne, 3, nE) and ``O`` (ne, 3, nO), the columns of K's facet dofs at / opposite to local vertex
+        i, ``fixed_O`` (ne, 3), ``S_pair`` (ne, 3, nE, nE) and the hat-major arrays of :meth:`rhs`.  Where the
+        layout of the facet dofs is not the one :func:`_opposite_vertices` checks, or an opposite edge is partly
+        fixed, nothing is eliminated (E: all columns, nO = 0)."""
         ne, nF3 = fd.shape
         k = nF3 // 3
         E = O = fixed_O = None
