@@ -197,3 +197,67 @@ def test_load_compiled_is_the_same_vector_and_zero_data_stay_folded():
         raise AssertionError("the compiled integrand of zero data was built")
 
     assert not assemble_load(fes, lambda: zero * v * dx, never).any()
+
+
+def _polynomial_membranes(domain):
+    from ngsolve import x, y
+
+    from ngcontact import TwoMembraneProblem
+
+    # degree <= 6: the P1 load integrands (degree <= 7) are integrated exactly by the order-8 rule of every level
+    return TwoMembraneProblem(domain=domain, f1=1 + x * y * (1 - x) ** 3, f2=-(x ** 2) * y ** 4, g1=0.1, g2=0.0,
+                              mu1=1.0, mu2=2.0)
+
+
+@pytest.mark.parametrize("domain", [CrissCrossSquare(n0=3), StructuredSquare(n0=4)])
+def test_nested_loads_are_the_assembled_loads_of_every_level(domain):
+    """The finest level's vectors are (bitwise) those its discretization assembles; a coarser level's, the
+    restriction P^T F, are its own assembled loads where both quadratures are exact (polynomial loads)."""
+    problem = _polynomial_membranes(domain)
+    meshes = list(domain.meshes(3, arrays=True))
+    loads = fem.FEMDiscretization.nested_loads(problem, meshes)
+    assert len(loads) == 3
+    for j, m in enumerate(domain.meshes(3, arrays=True)):
+        disc = fem.FEMDiscretization(problem, m, order=1)
+        for k, f in enumerate(problem.loads):
+            want = disc.load_vector(f)
+            if j == 2:
+                assert np.array_equal(loads[j][k], want)
+            else:
+                assert np.abs(loads[j][k] - want).max() <= 1e-14 * np.abs(want).max(), (j, k)
+
+
+def test_nested_loads_apply_to_nonzero_p1_loads_on_array_hierarchies_only():
+    problem = _polynomial_membranes(CrissCrossSquare(n0=2))
+    meshes = list(problem.domain.meshes(2, arrays=True))
+    assert fem.FEMDiscretization.nested_loads(problem, meshes, order=2) is None
+    assert fem.FEMDiscretization.nested_loads(problem, meshes, constraints="bernstein") is None
+    assert fem.FEMDiscretization.nested_loads(problem, list(problem.domain.meshes(2))) is None  # NGSolve meshes
+    ex9 = load_scene("ex9_obstacle").problem  # f = 0
+    assert not fem.FEMDiscretization.restricts_loads(ex9)
+    assert fem.FEMDiscretization.nested_loads(ex9, list(ex9.domain.meshes(2, arrays=True))) is None
+
+
+def test_loads_of_the_wrong_shape_are_refused():
+    problem = _polynomial_membranes(CrissCrossSquare(n0=2))
+    mesh = next(problem.domain.meshes(1, arrays=True))
+    with pytest.raises(ValueError, match=r"loads: expected 2 vectors of length 13, got shapes \[\(13,\), \(12,\)\]"):
+        fem.FEMDiscretization(problem, mesh, order=1, loads=[np.zeros(13), np.zeros(12)])
+
+
+def test_uniform_runs_use_the_restricted_loads():
+    """A nested P1 run on array levels discretizes every level with the restriction of the finest load (its
+    systems' right-hand sides are those of FEMDiscretization(..., loads=nested_loads(...)))."""
+    from ngcontact.drivers import RunOptions, run_scene
+
+    scene = load_scene("test1")
+    got = []
+    run_scene(scene, RunOptions.for_scene(scene, levels=3),
+              on_level=lambda res: got.append(res.discretization.system.F.copy()))
+    problem = scene.problem
+    loads = fem.FEMDiscretization.nested_loads(problem, list(problem.domain.meshes(3, arrays=True)))
+    for j, m in enumerate(problem.domain.meshes(3, arrays=True)):
+        want = fem.FEMDiscretization(problem, m, order=1, loads=loads[j]).system.F
+        assert np.array_equal(got[j], want), j
+    assert not np.array_equal(got[0], fem.FEMDiscretization(problem, next(problem.domain.meshes(1, arrays=True)),
+                                                            order=1).system.F)

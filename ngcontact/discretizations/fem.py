@@ -72,7 +72,7 @@ class FEMDiscretization(Discretization):
         for P1 with data that are functions of the coordinates only (:func:`~.base.coordinate_only`): the
         system is built from the arrays, the data evaluated at the vertices on the coarsest mesh of the
         hierarchy, and :attr:`mesh` and :attr:`fes` are built on first use (errors, GridFunctions, VTK,
-        estimators, a nonzero load); otherwise its NGSolve mesh is built at once.
+        estimators, a nonzero load that is not given as ``loads``); otherwise its NGSolve mesh is built at once.
     order : int, 1..4
     solver : str
         sparse SPD solver of the Newton steps ('sparsecholesky' or 'scipy').
@@ -84,6 +84,9 @@ class FEMDiscretization(Discretization):
         'equispaced': at the equispaced lattice of [CAMWA21] (the same nodes for p = 1, 2, 3);
         'bernstein': unknowns are Bernstein coefficients (:mod:`~ngcontact.discretizations.bernstein`),
         the gap's coefficients >= 0 and the multiplier in the dual basis (the same as 'nodal' for p = 1).
+    loads : sequence of arrays, optional
+        the load vectors (f_a, psi_i) of the fields at all nodes (boundary nodes included), used instead of
+        assembling them; :meth:`nested_loads` gives those of a nested P1 hierarchy.
     """
 
     name = "fem"
@@ -92,7 +95,7 @@ class FEMDiscretization(Discretization):
     array_meshes = True
 
     def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6,
-                 constraints: str = "nodal"):
+                 constraints: str = "nodal", loads=None):
         if order not in self.orders:
             raise ValueError(f"order must be 1, 2, 3 or 4 for fem, got {order!r}")
         node_set = constraint_node_set(constraints)
@@ -154,8 +157,11 @@ class FEMDiscretization(Discretization):
 
         self.lift = []  # nodal Dirichlet values of each field (zero inside)
         F = []
-        for mu, f, gname in zip(problem.mus, problem.loads, problem.dirichlet_names):
-            Fn = nodes.T.T @ self.load_vector(f)
+        if loads is not None and (len(loads) != problem.nfields or any(np.shape(v) != (nodes.ndof,) for v in loads)):
+            raise ValueError(f"loads: expected {problem.nfields} vectors of length {nodes.ndof}, got shapes "
+                             f"{[np.shape(v) for v in loads]}")
+        for k, (mu, f, gname) in enumerate(zip(problem.mus, problem.loads, problem.dirichlet_names)):
+            Fn = nodes.T.T @ self.load_vector(f) if loads is None else np.asarray(loads[k], dtype=float)
             gb = np.zeros(nodes.ndof)
             gb[self.boundary] = coef[gname][self.boundary]
             self.lift.append(gb)
@@ -174,11 +180,44 @@ class FEMDiscretization(Discretization):
     def load_vector(self, f) -> np.ndarray:
         """(f, phi_i) for the hierarchical basis; zero for an identically zero f.  Assembled with f compiled: the
         same vector (bitwise), faster.  (A nonzero load on an ArrayMesh builds its NGSolve mesh here.)"""
-        if self._arrays is not None and isinstance(f, CoefficientFunction) and str(f) == "ZeroCoefficientFunction":
+        if self._arrays is not None and _zero(f):
             return np.zeros(self.nodes.ndof)
-        v = self.fes.TestFunction()
-        return assemble_load(self.fes, lambda: f * v * dx(bonus_intorder=self.quad_bonus),
-                             lambda: f.Compile() * v * dx(bonus_intorder=self.quad_bonus))
+        return _assemble_load(self.fes, f, self.quad_bonus)
+
+    @classmethod
+    def restricts_loads(cls, problem, order: int = 1, constraints: str = "nodal") -> bool:
+        """Whether :meth:`nested_loads` applies to this problem and these options (P1 in the Lagrange basis,
+        a nonzero load)."""
+        return order == 1 and constraints != "bernstein" and not all(map(_zero, problem.loads))
+
+    @classmethod
+    def nested_loads(cls, problem, meshes, order: int = 1, constraints: str = "nodal", quad_bonus: int = 6):
+        """The load vectors of every level of a nested P1 hierarchy (``meshes``: the
+        :class:`~ngcontact.domains.ArrayMesh` levels T_0..T_L of one structured rectangle, each carrying
+        ``ngc_parents``), for the ``loads`` argument: list per level of ``problem.nfields`` nodal vectors; None
+        when this does not apply (:meth:`restricts_loads`, or other meshes).
+
+        The finest level's vectors are assembled as the discretization of T_L assembles them (the same
+        vectors); each coarser level's are their restriction F_{j-1} = P_j^T F_j.  P1 spaces of nested meshes
+        are nested, a coarse hat function being psi_a + 1/2 sum of the fine hat functions at the midpoints of the
+        edges at a (the table ngc_parents), so P_j^T F_j = (f, psi_{j-1}) integrated with T_L's quadrature:
+        the same functional, integrated more accurately than on the coarse mesh, for the cost of sums instead
+        of an NGSolve mesh, a space and an assembly per level."""
+        if not (meshes and cls.restricts_loads(problem, order, constraints)):
+            return None
+        if not all(isinstance(m, ArrayMesh) for m in meshes) \
+                or any(m.ngc_parents is None or len(m.ngc_parents) != m.nv for m in meshes[1:]):
+            return None
+        finest = meshes[-1]
+        fes = H1(finest.build(), order=1, dirichlet=DIRICHLET)
+        loads = [None] * len(meshes)
+        loads[-1] = [_assemble_load(fes, f, quad_bonus) for f in problem.loads]
+        for j in range(len(meshes) - 1, 0, -1):
+            a, b = meshes[j].ngc_parents[:, 0], meshes[j].ngc_parents[:, 1]
+            nc = meshes[j - 1].nv
+            loads[j - 1] = [0.5 * (np.bincount(a, weights=F, minlength=nc) + np.bincount(b, weights=F, minlength=nc))
+                            for F in loads[j]]
+        return loads
 
     # ------------------------------------------------------------------ mesh and space
     @property
@@ -344,6 +383,18 @@ class FEMDiscretization(Discretization):
             emax = max(emax, float(np.max(np.abs(exact_nodal - self.nodes.to_values(nodal[name])))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
+
+
+def _zero(f) -> bool:
+    """Whether the load ``f`` is NGSolve's zero CoefficientFunction."""
+    return isinstance(f, CoefficientFunction) and str(f) == "ZeroCoefficientFunction"
+
+
+def _assemble_load(fes, f, quad_bonus: int) -> np.ndarray:
+    """(f, phi_i) on ``fes``, assembled with f compiled (the same vector, bitwise, faster)."""
+    v = fes.TestFunction()
+    return assemble_load(fes, lambda: f * v * dx(bonus_intorder=quad_bonus),
+                         lambda: f.Compile() * v * dx(bonus_intorder=quad_bonus))
 
 
 def _p1_data(problem, nodes, boundary: np.ndarray) -> dict:

@@ -3,6 +3,11 @@
 Builds no forms (the discretization does) and draws nothing (plotting reads the written files).
 Before a level is built its DOF count is estimated; with ``options.max_ndof`` the run stops before
 a level that would exceed it (``result.complete`` False, ``result.stop_reason`` says why).
+
+P1 on the array levels of a structured rectangle (without ``max_ndof``): the loads of all levels are the finest
+level's load vectors and their restrictions (``FEMDiscretization.nested_loads``), so only the finest level builds
+an NGSolve mesh and assembles.  The levels' arrays are then generated before level 0 (each level's time still
+in its ``time_mesh_s``), and the finest load's assembly counts in the finest level's ``time_assembly_s``.
 """
 from __future__ import annotations
 
@@ -29,7 +34,9 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
     result = RunResult(scene=scene, options=options)
     previous, t_cum = None, 0.0
     # P1 FEM on structured rectangles: levels as arrays, NGSolve meshes only where something asks (domains.ArrayMesh)
-    meshes = problem.domain.meshes(options.levels, arrays=DISCRETIZATIONS[options.disc].array_meshes)
+    Disc = DISCRETIZATIONS[options.disc]
+    meshes = problem.domain.meshes(options.levels, arrays=Disc.array_meshes)
+    levels, loads, t_loads = _nested_loads(Disc, problem, options, meshes, say)
     for level in range(options.levels):
         if level > 0 and options.max_ndof is not None:
             ndof = next_level_ndof(result.rows)
@@ -39,14 +46,25 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
                 say(f"stopped before level {level}: {result.stop_reason}")
                 break
         t0 = time.perf_counter()
-        mesh = next(meshes)
-        t_mesh = time.perf_counter() - t0
+        if levels is None:
+            mesh = next(meshes)
+            t_mesh = time.perf_counter() - t0
+        else:  # generated before level 0: (mesh, its time), released here
+            (mesh, t_mesh), levels[level] = levels[level], None
+        level_loads = None
+        if loads is not None:
+            level_loads, loads[level] = loads[level], None
         # hand the coarser level over (no reference left here): freed once it is prolongated (solve_level)
         handoff, previous, out = ([previous] if previous is not None else None), None, None
         result.discretization = result.x = result.y = None
         out = solve_level(problem, mesh, options, previous=handoff, initial_guess=scene.initial_guess,
-                          with_estimate=options.estimate, callback=iteration_callback(result, level, newton_callback))
-        total = time.perf_counter() - t0
+                          with_estimate=options.estimate, callback=iteration_callback(result, level, newton_callback),
+                          loads=level_loads)
+        mesh = level_loads = None
+        if level == options.levels - 1 and t_loads:
+            out.disc.time_assembly += t_loads  # the finest load, assembled before level 0
+        total = time.perf_counter() - t0 + (t_loads if level == options.levels - 1 else 0.0)
+        total += 0.0 if levels is None else t_mesh
         t_cum += total
         row = level_row(level, out, options, h=problem.domain.h(level), times={"time_mesh_s": t_mesh})
         row.update(time_total_s=total, time_cum_s=t_cum)
@@ -65,3 +83,25 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
         say(msg)
         previous = (out.disc, out.sol.x, out.sol.y)
     return result
+
+
+def _nested_loads(Disc, problem, options, meshes, say):
+    """(levels, loads, seconds): for a discretization with ``nested_loads`` that restricts these loads and a run
+    without ``max_ndof``, every level as (mesh, seconds to generate it), the load vectors per level (None where
+    the meshes are not a nested array hierarchy) and the time of their assembly; else (None, None, 0.0)."""
+    restricts = getattr(Disc, "restricts_loads", None)
+    if options.max_ndof is not None or restricts is None \
+            or not restricts(problem, order=options.order, constraints=options.constraints):
+        return None, None, 0.0
+    levels = []
+    while True:
+        t0 = time.perf_counter()
+        mesh = next(meshes, None)
+        if mesh is None:
+            break
+        levels.append((mesh, time.perf_counter() - t0))
+    say(f"loads of levels 0..{len(levels) - 1}: assembling on level {len(levels) - 1}, restricting to the coarser ones")
+    t0 = time.perf_counter()
+    loads = Disc.nested_loads(problem, [m for m, _ in levels], order=options.order,
+                              constraints=options.constraints)
+    return levels, loads, (time.perf_counter() - t0 if loads is not None else 0.0)
