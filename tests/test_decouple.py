@@ -31,6 +31,22 @@ def test_decoupled_newton_gives_the_coupled_solution(mu2, order):
     assert s.gap(b.x).min() >= -1e-12 and b.y.min() >= -1e-12
 
 
+@pytest.mark.parametrize("mu2,order", [(2.0, 1), (0.5, 1), (3.0, 2)])
+def test_declared_tensions_give_the_split_that_the_comparison_finds(mu2, order):
+    """The FEM declares K = blockdiag(mu1 S, mu2 S) (``tensions``): the split read off that way is the one found by
+    comparing K's blocks."""
+    import copy
+
+    s = _disc(mu2, order).system
+    assert s.tensions == (2.0, mu2)
+    S, alpha = s.membrane_split()
+    checked = copy.copy(s)
+    checked.tensions = None
+    S2, alpha2 = checked.membrane_split()
+    assert alpha == mu2 / 2.0 and alpha2 == pytest.approx(alpha, rel=1e-15)
+    assert (S != S2).nnz == 0 and S.shape == S2.shape
+
+
 def test_no_split_for_the_obstacle_problem_or_coupled_blocks():
     d = _disc(1.0)
     s = d.system

@@ -33,6 +33,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Optional, Tuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -130,6 +131,9 @@ class ComplementaritySystem:
     D: np.ndarray
     solver: str = "sparsecholesky"
     stiffness_scale: float = 1.0  # tension scale of the problem (Problem.stiffness_scale): see constraint_weight
+    # (mu1, mu2) when K was built as blockdiag(mu1 S, mu2 S), the two blocks on one pattern (FEM): membrane_split
+    # then reads S and alpha off without comparing K's arrays
+    tensions: Optional[Tuple[float, float]] = None
     _B: sp.csr_matrix = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -227,6 +231,7 @@ class ComplementaritySystem:
             S s = F_1 + F_2                                  (Poisson, no contact)
             S w - D (1 + 1/alpha) y = F_1 - F_2 / alpha,     w >= 0, y >= 0, w.y = 0
         (an obstacle problem for w);  x_1 = (s + alpha w)/(1 + alpha), x_2 = (s - w)/(1 + alpha).
+        With :attr:`tensions` (K built so) S is K's leading block and alpha = mu2 / mu1, not compared.
         """
         m, n = self.m, self.n
         if n != 2 * m or np.any(self.b != 0) or not np.array_equal(self.up, np.arange(m)) \
@@ -234,6 +239,10 @@ class ComplementaritySystem:
             return None
         K = self.K.tocsr()
         nnz1 = int(K.indptr[m])
+        if self.tensions is not None and m > 0:
+            mu1, mu2 = self.tensions
+            return sp.csr_matrix((K.data[:nnz1], K.indices[:nnz1], K.indptr[:m + 1]), shape=(m, m), copy=False), \
+                float(mu2) / float(mu1)
         if m > 0 and K.nnz == 2 * nnz1 and np.array_equal(K.indptr[m:] - nnz1, K.indptr[:m + 1]) \
                 and np.array_equal(K.indices[nnz1:] - m, K.indices[:nnz1]) \
                 and (nnz1 == 0 or int(K.indices[:nnz1].max()) < m):

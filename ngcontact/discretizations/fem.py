@@ -174,7 +174,8 @@ class FEMDiscretization(Discretization):
         else:  # u - psi >= 0
             up, lo, b = np.arange(ni), -np.ones(ni, dtype=np.int64), coef["psi"][self.interior]  # psi of problem.data()
         self.system = ComplementaritySystem(K, np.concatenate(F), up, lo, b, self.D, solver=solver,
-                                             stiffness_scale=problem.stiffness_scale)
+                                             stiffness_scale=problem.stiffness_scale,
+                                             tensions=tuple(problem.mus) if problem.obstacle is None else None)
         self.time_assembly = time.perf_counter() - t0
 
     def load_vector(self, f) -> np.ndarray:
