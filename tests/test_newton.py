@@ -9,7 +9,7 @@ from ngcontact.newton import NewtonOptions, StopOptions, semismooth_newton
 from ngcontact.newton.stopping import linearization_defect
 
 
-def _system(n=60):
+def _system(n=60, solver="sparsecholesky"):
     """1D two-membrane analogue: membrane 1 pushed down in the middle, up near the ends."""
     h = 1.0 / (n + 1)
     t = np.arange(1, n + 1) * h
@@ -17,7 +17,7 @@ def _system(n=60):
     K = sp.block_diag([L, 2 * L], format="csr")
     f1 = np.where(np.abs(t - 0.5) < 0.2, -8.0, 6.0)
     F = np.concatenate([f1 * h, np.ones(n) * h])
-    return ComplementaritySystem(K, F, np.arange(n), n + np.arange(n), np.zeros(n), np.full(n, h))
+    return ComplementaritySystem(K, F, np.arange(n), n + np.arange(n), np.zeros(n), np.full(n, h), solver=solver)
 
 
 @pytest.mark.parametrize("cfun", ["min", "fb"])
@@ -67,8 +67,9 @@ def test_history_logs_residuals_active_sets_and_times():
 @pytest.mark.parametrize("cfun", ["min", "fb"])
 def test_every_record_describes_its_iterate(cfun):
     """Record k (residual, active set, changes) agrees with the iterate X^k, obtained as the result of a
-    run stopped after k iterations."""
-    s = _system()
+    run stopped after k iterations.  (scipy's factorization: the runs are the same to the bit; with NGSolve's threaded
+    one the Fischer-Burmeister iterates of two runs were seen to part by 4e-9 relative.)"""
+    s = _system(solver="scipy")
     full = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun))
     cf = get_cfunction(cfun)
     active_prev = np.zeros(s.m, dtype=bool)  # X^0 = 0: g = y = 0, every row active
@@ -77,7 +78,7 @@ def test_every_record_describes_its_iterate(cfun):
         it = semismooth_newton(s, np.zeros(s.n), np.zeros(s.m), NewtonOptions(cfun=cfun, maxit=k))
         rec = full.history[k]
         phi = np.concatenate([s.residual(it.x, it.y), cf.value(s.gap(it.x), it.y)])
-        # the two runs agree to round-off (threaded factorizations): ||Phi||/||F|| to 1e-12 absolute
+        # the record's ||Phi||/||F|| is the one recomputed here from the same iterate, up to round-off
         assert rec.res == pytest.approx(np.linalg.norm(phi) / np.linalg.norm(s.F), rel=1e-9, abs=1e-12)
         active = s.gap(it.x) <= it.y
         assert rec.n_active == int(active.sum())

@@ -227,15 +227,49 @@ def test_nested_loads_are_the_assembled_loads_of_every_level(domain):
                 assert np.abs(loads[j][k] - want).max() <= 1e-14 * np.abs(want).max(), (j, k)
 
 
-def test_nested_loads_apply_to_nonzero_p1_loads_on_array_hierarchies_only():
+@pytest.mark.parametrize("scene,domain", [("test1", CrissCrossSquare(n0=3)),
+                                          ("ex9_obstacle", StructuredSquare(n0=4, xmin=-2, xmax=2, ymin=-2, ymax=2))])
+def test_nested_data_are_the_evaluated_data_of_every_level(scene, domain):
+    """The data injected from the finest level are those each level's set-up evaluates (the same points)."""
+    from dataclasses import replace
+
+    problem = replace(load_scene(scene).problem, domain=domain)
+    data = fem.FEMDiscretization.nested_data(problem, list(domain.meshes(3, arrays=True)))
+    assert len(data) == 3
+    for j, m in enumerate(domain.meshes(3, arrays=True)):
+        disc = fem.FEMDiscretization(problem, m, order=1)
+        want = fem._p1_data(problem, disc.nodes, disc.boundary)
+        assert list(data[j]) == list(want)
+        for name, v in want.items():
+            assert np.abs(data[j][name] - v).max() <= 1e-15 * max(np.abs(v).max(), 1.0), (j, name)
+        # and the discretization built from them is the one that evaluates them
+        given = fem.FEMDiscretization(problem, m, order=1, data=data[j])
+        assert np.abs(given.system.F - disc.system.F).max() <= 1e-14 * np.abs(disc.system.F).max()
+        assert np.abs(given.system.b - disc.system.b).max() <= 1e-15 * max(np.abs(disc.system.b).max(), 1.0)
+
+
+def test_nested_inputs_apply_to_p1_on_array_hierarchies_only():
     problem = _polynomial_membranes(CrissCrossSquare(n0=2))
     meshes = list(problem.domain.meshes(2, arrays=True))
     assert fem.FEMDiscretization.nested_loads(problem, meshes, order=2) is None
     assert fem.FEMDiscretization.nested_loads(problem, meshes, constraints="bernstein") is None
-    assert fem.FEMDiscretization.nested_loads(problem, list(problem.domain.meshes(2))) is None  # NGSolve meshes
-    ex9 = load_scene("ex9_obstacle").problem  # f = 0
-    assert not fem.FEMDiscretization.restricts_loads(ex9)
-    assert fem.FEMDiscretization.nested_loads(ex9, list(ex9.domain.meshes(2, arrays=True))) is None
+    for kw in (dict(order=2), dict(constraints="bernstein")):
+        assert fem.FEMDiscretization.nested_data(problem, meshes, **kw) is None
+        assert fem.FEMDiscretization.nested_inputs(problem, meshes, **kw) is None
+    ngmeshes = list(problem.domain.meshes(2))
+    assert fem.FEMDiscretization.nested_inputs(problem, ngmeshes) is None
+    ex9 = load_scene("ex9_obstacle").problem  # f = 0: no loads, the data only
+    levels = list(ex9.domain.meshes(2, arrays=True))
+    assert fem.FEMDiscretization.nested_loads(ex9, levels) is None
+    assert all(list(kw) == ["data"] for kw in fem.FEMDiscretization.nested_inputs(ex9, levels))
+    # data that are not functions of the coordinates only: no injection (the level builds its NGSolve mesh)
+    from dataclasses import replace
+
+    from ngsolve import specialcf
+
+    odd = replace(problem, g1=0.1 + 0 * specialcf.mesh_size)
+    assert fem.FEMDiscretization.nested_data(odd, meshes) is None
+    assert list(fem.FEMDiscretization.nested_inputs(odd, meshes)[0]) == ["loads"]
 
 
 def test_loads_of_the_wrong_shape_are_refused():
@@ -243,21 +277,32 @@ def test_loads_of_the_wrong_shape_are_refused():
     mesh = next(problem.domain.meshes(1, arrays=True))
     with pytest.raises(ValueError, match=r"loads: expected 2 vectors of length 13, got shapes \[\(13,\), \(12,\)\]"):
         fem.FEMDiscretization(problem, mesh, order=1, loads=[np.zeros(13), np.zeros(12)])
+    good = fem.FEMDiscretization.nested_data(problem, [mesh])[0]
+    with pytest.raises(ValueError, match=r"data: expected the values of \['f1', 'f2', 'g1', 'g2'\] at 13 vertices, "
+                                         r"got .*'g2': \(12,\)"):
+        fem.FEMDiscretization(problem, mesh, order=1, data={**good, "g2": np.zeros(12)})
+    with pytest.raises(ValueError, match="data: nodal data are taken by P1 on an ArrayMesh"):
+        fem.FEMDiscretization(problem, problem.domain.mesh(0), order=1, data=good)
 
 
-def test_uniform_runs_use_the_restricted_loads():
-    """A nested P1 run on array levels discretizes every level with the restriction of the finest load (its
-    systems' right-hand sides are those of FEMDiscretization(..., loads=nested_loads(...)))."""
+def test_uniform_runs_use_the_restricted_loads(monkeypatch):
+    """A nested P1 run on array levels discretizes every level with the restriction of the finest load and the
+    data injected from it (its systems' right-hand sides are those of FEMDiscretization(..., **nested_inputs))."""
     from ngcontact.drivers import RunOptions, run_scene
 
     scene = load_scene("test1")
-    got = []
+    got, evaluations = [], []
+    p1_data = fem._p1_data
+    monkeypatch.setattr(fem, "_p1_data", lambda *a: evaluations.append(1) or p1_data(*a))
     run_scene(scene, RunOptions.for_scene(scene, levels=3),
               on_level=lambda res: got.append(res.discretization.system.F.copy()))
+    assert len(evaluations) == 1  # the data are evaluated on the finest level only
+    monkeypatch.undo()
     problem = scene.problem
-    loads = fem.FEMDiscretization.nested_loads(problem, list(problem.domain.meshes(3, arrays=True)))
+    inputs = fem.FEMDiscretization.nested_inputs(problem, list(problem.domain.meshes(3, arrays=True)))
+    assert all(sorted(kw) == ["data", "loads"] for kw in inputs)
     for j, m in enumerate(problem.domain.meshes(3, arrays=True)):
-        want = fem.FEMDiscretization(problem, m, order=1, loads=loads[j]).system.F
+        want = fem.FEMDiscretization(problem, m, order=1, **inputs[j]).system.F
         assert np.array_equal(got[j], want), j
     assert not np.array_equal(got[0], fem.FEMDiscretization(problem, next(problem.domain.meshes(1, arrays=True)),
                                                             order=1).system.F)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 import weakref
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
@@ -87,6 +88,10 @@ class FEMDiscretization(Discretization):
     loads : sequence of arrays, optional
         the load vectors (f_a, psi_i) of the fields at all nodes (boundary nodes included), used instead of
         assembling them; :meth:`nested_loads` gives those of a nested P1 hierarchy.
+    data : dict, optional
+        P1 on an ArrayMesh that stays arrays: the data at the vertices as the set-up evaluates them (name ->
+        values; Dirichlet data at the boundary vertices, zero elsewhere), used instead of evaluating them;
+        :meth:`nested_data` gives those of a nested hierarchy.
     """
 
     name = "fem"
@@ -95,7 +100,7 @@ class FEMDiscretization(Discretization):
     array_meshes = True
 
     def __init__(self, problem, mesh, order: int = 1, solver: str = "sparsecholesky", quad_bonus: int = 6,
-                 constraints: str = "nodal", loads=None):
+                 constraints: str = "nodal", loads=None, data=None):
         if order not in self.orders:
             raise ValueError(f"order must be 1, 2, 3 or 4 for fem, got {order!r}")
         node_set = constraint_node_set(constraints)
@@ -135,8 +140,16 @@ class FEMDiscretization(Discretization):
         ni = len(self.interior)
 
         # data at the nodes, checked once
-        data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()} if tables is None \
-            else _p1_data(problem, nodes, self.boundary)
+        if data is not None:
+            if arrays is None:
+                raise ValueError("data: nodal data are taken by P1 on an ArrayMesh with coordinate data only")
+            if list(data) != list(problem.data()) or any(np.shape(v) != (nodes.ndof,) for v in data.values()):
+                raise ValueError(f"data: expected the values of {list(problem.data())} at {nodes.ndof} vertices, got "
+                                 f"{ {k: np.shape(v) for k, v in data.items()} }")
+        elif tables is None:
+            data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()}
+        else:
+            data = _p1_data(problem, nodes, self.boundary)
         check_data_on_points(problem, data, ~free, nodes.coords)
         coef = {name: nodes.from_values(v) for name, v in data.items()}  # coefficients of the interpolants
 
@@ -186,17 +199,50 @@ class FEMDiscretization(Discretization):
         return _assemble_load(self.fes, f, self.quad_bonus)
 
     @classmethod
-    def restricts_loads(cls, problem, order: int = 1, constraints: str = "nodal") -> bool:
-        """Whether :meth:`nested_loads` applies to this problem and these options (P1 in the Lagrange basis,
-        a nonzero load)."""
-        return order == 1 and constraints != "bernstein" and not all(map(_zero, problem.loads))
+    def nested_inputs(cls, problem, meshes, order: int = 1, constraints: str = "nodal") -> Optional[list]:
+        """Per level of a nested array hierarchy (``meshes``: the :class:`~ngcontact.domains.ArrayMesh` levels
+        T_0..T_L of one structured rectangle, each carrying ``ngc_parents``), the keyword arguments that hand the
+        level what is computed once on the finest level: ``loads`` (:meth:`nested_loads`) and ``data``
+        (:meth:`nested_data`), where they apply; None when neither does."""
+        if not (order == 1 and constraints != "bernstein" and _nested_arrays(meshes)):
+            return None
+        out = [{} for _ in meshes]
+        for key, values in (("loads", cls.nested_loads(problem, meshes, order, constraints)),
+                            ("data", cls.nested_data(problem, meshes, order, constraints))):
+            for kw, v in zip(out, values or ()):
+                kw[key] = v
+        return out if any(out) else None
+
+    @classmethod
+    def nested_data(cls, problem, meshes, order: int = 1, constraints: str = "nodal") -> Optional[list]:
+        """The data at the vertices of every level of a nested array hierarchy (as :meth:`nested_loads`), for the
+        ``data`` argument: the finest level's as its discretization evaluates them, each coarser level's their
+        injection (a coarse vertex is the fine vertex whose two parents in ngc_parents are it); None where P1
+        does not stay arrays (data not of the coordinates only, another order or basis) or other meshes."""
+        if not (order == 1 and constraints != "bernstein" and _nested_arrays(meshes)
+                and all(map(coordinate_only, problem.data().values()))):
+            return None
+        finest = meshes[-1]
+        nodes = LagrangeNodes.from_arrays(np.asarray(finest.X, dtype=float), finest.T,
+                                          lambda where: meshpoints(*finest.vertex_location(where)))
+        data = [None] * len(meshes)
+        data[-1] = _p1_data(problem, nodes, np.flatnonzero(finest.dirichlet_vertices()))
+        for j in range(len(meshes) - 1, 0, -1):
+            par = meshes[j].ngc_parents
+            old = np.flatnonzero(par[:, 0] == par[:, 1])
+            nc = meshes[j - 1].nv
+            if len(old) != nc or np.any(np.bincount(par[old, 0], minlength=nc) != 1):
+                return None
+            inj = np.empty(nc, dtype=np.int64)
+            inj[par[old, 0]] = old
+            data[j - 1] = {name: v[inj] for name, v in data[j].items()}
+        return data
 
     @classmethod
     def nested_loads(cls, problem, meshes, order: int = 1, constraints: str = "nodal", quad_bonus: int = 6):
-        """The load vectors of every level of a nested P1 hierarchy (``meshes``: the
-        :class:`~ngcontact.domains.ArrayMesh` levels T_0..T_L of one structured rectangle, each carrying
-        ``ngc_parents``), for the ``loads`` argument: list per level of ``problem.nfields`` nodal vectors; None
-        when this does not apply (:meth:`restricts_loads`, or other meshes).
+        """The load vectors of every level of a nested array hierarchy (as :meth:`nested_data`), for the ``loads``
+        argument: list per level of ``problem.nfields`` nodal vectors; None when this does not apply (another
+        order or basis, zero loads, other meshes).
 
         The finest level's vectors are assembled as the discretization of T_L assembles them (the same
         vectors); each coarser level's are their restriction F_{j-1} = P_j^T F_j.  P1 spaces of nested meshes
@@ -204,10 +250,8 @@ class FEMDiscretization(Discretization):
         edges at a (the table ngc_parents), so P_j^T F_j = (f, psi_{j-1}) integrated with T_L's quadrature:
         the same functional, integrated more accurately than on the coarse mesh, for the cost of sums instead
         of an NGSolve mesh, a space and an assembly per level."""
-        if not (meshes and cls.restricts_loads(problem, order, constraints)):
-            return None
-        if not all(isinstance(m, ArrayMesh) for m in meshes) \
-                or any(m.ngc_parents is None or len(m.ngc_parents) != m.nv for m in meshes[1:]):
+        if not (order == 1 and constraints != "bernstein" and _nested_arrays(meshes)) \
+                or all(map(_zero, problem.loads)):
             return None
         finest = meshes[-1]
         fes = H1(finest.build(), order=1, dirichlet=DIRICHLET)
@@ -384,6 +428,12 @@ class FEMDiscretization(Discretization):
             emax = max(emax, float(np.max(np.abs(exact_nodal - self.nodes.to_values(nodal[name])))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
+
+
+def _nested_arrays(meshes) -> bool:
+    """Whether ``meshes`` are ArrayMesh levels T_0..T_L, each finer one with its parent table."""
+    return bool(meshes) and all(isinstance(m, ArrayMesh) for m in meshes) \
+        and all(m.ngc_parents is not None and len(m.ngc_parents) == m.nv for m in meshes[1:])
 
 
 def _zero(f) -> bool:

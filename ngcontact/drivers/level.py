@@ -101,22 +101,21 @@ def newton_iterates(disc, x0, y0, *, cfun: str = "min", tol: float = 1e-10, maxi
 
 
 def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, with_estimate: bool = False,
-                callback: Optional[Callable] = None, estimator_options=None, loads=None) -> LevelOutcome:
+                callback: Optional[Callable] = None, estimator_options=None, inputs=None) -> LevelOutcome:
     """Discretize ``problem`` on ``mesh``, solve, evaluate errors (and the estimate, with ``estimator_options``
     if given, else ``options.estimator_options``).
 
     ``previous``: (disc, x, y) of the coarser level, prolongated when ``options.start == 'nested'``;
     otherwise the start is ``initial_guess`` (the scene's, or None).  ``previous`` may also be handed over as
     a one-element list, which is emptied: when the caller keeps no other reference, the coarser level is freed
-    as soon as it has been prolongated (before the Newton solve of this level).  ``loads``: the level's load
-    vectors, handed to the discretization (``FEMDiscretization.nested_loads``).
+    as soon as it has been prolongated (before the Newton solve of this level).  ``inputs``: keyword arguments
+    handed to the discretization (``FEMDiscretization.nested_inputs``: the level's loads, data).
     """
     if isinstance(previous, list):
         previous = previous.pop()
     Disc = DISCRETIZATIONS[options.disc]
     kw = {"condense": options.condense} if options.disc == "hho" else {}
-    if loads is not None:
-        kw["loads"] = loads
+    kw.update(inputs or {})
     disc = Disc(problem, mesh, order=options.order, solver=options.solver, constraints=options.constraints, **kw)
     warm = previous is not None and options.start == "nested"
     t0 = time.perf_counter()

@@ -5,9 +5,10 @@ Before a level is built its DOF count is estimated; with ``options.max_ndof`` th
 a level that would exceed it (``result.complete`` False, ``result.stop_reason`` says why).
 
 P1 on the array levels of a structured rectangle (without ``max_ndof``): the loads of all levels are the finest
-level's load vectors and their restrictions (``FEMDiscretization.nested_loads``), so only the finest level builds
-an NGSolve mesh and assembles.  The levels' arrays are then generated before level 0 (each level's time still
-in its ``time_mesh_s``), and the finest load's assembly counts in the finest level's ``time_assembly_s``.
+level's load vectors and their restrictions, the data at the vertices the finest level's values injected
+(``FEMDiscretization.nested_inputs``), so only the finest level builds an NGSolve mesh, assembles loads and
+evaluates data.  The levels' arrays are then generated before level 0 (each level's time still in its
+``time_mesh_s``), and that work on the finest level counts in the finest level's ``time_assembly_s``.
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
     # P1 FEM on structured rectangles: levels as arrays, NGSolve meshes only where something asks (domains.ArrayMesh)
     Disc = DISCRETIZATIONS[options.disc]
     meshes = problem.domain.meshes(options.levels, arrays=Disc.array_meshes)
-    levels, loads, t_loads = _nested_loads(Disc, problem, options, meshes, say)
+    levels, inputs, t_inputs = _nested_inputs(Disc, problem, options, meshes, say)
     for level in range(options.levels):
         if level > 0 and options.max_ndof is not None:
             ndof = next_level_ndof(result.rows)
@@ -51,19 +52,19 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
             t_mesh = time.perf_counter() - t0
         else:  # generated before level 0: (mesh, its time), released here
             (mesh, t_mesh), levels[level] = levels[level], None
-        level_loads = None
-        if loads is not None:
-            level_loads, loads[level] = loads[level], None
+        level_inputs = None
+        if inputs is not None:
+            level_inputs, inputs[level] = inputs[level], None
         # hand the coarser level over (no reference left here): freed once it is prolongated (solve_level)
         handoff, previous, out = ([previous] if previous is not None else None), None, None
         result.discretization = result.x = result.y = None
         out = solve_level(problem, mesh, options, previous=handoff, initial_guess=scene.initial_guess,
                           with_estimate=options.estimate, callback=iteration_callback(result, level, newton_callback),
-                          loads=level_loads)
-        mesh = level_loads = None
-        if level == options.levels - 1 and t_loads:
-            out.disc.time_assembly += t_loads  # the finest load, assembled before level 0
-        total = time.perf_counter() - t0 + (t_loads if level == options.levels - 1 else 0.0)
+                          inputs=level_inputs)
+        mesh = level_inputs = None
+        if level == options.levels - 1 and t_inputs:
+            out.disc.time_assembly += t_inputs  # the finest level's loads and data, before level 0
+        total = time.perf_counter() - t0 + (t_inputs if level == options.levels - 1 else 0.0)
         total += 0.0 if levels is None else t_mesh
         t_cum += total
         row = level_row(level, out, options, h=problem.domain.h(level), times={"time_mesh_s": t_mesh})
@@ -85,13 +86,12 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
     return result
 
 
-def _nested_loads(Disc, problem, options, meshes, say):
-    """(levels, loads, seconds): for a discretization with ``nested_loads`` that restricts these loads and a run
-    without ``max_ndof``, every level as (mesh, seconds to generate it), the load vectors per level (None where
-    the meshes are not a nested array hierarchy) and the time of their assembly; else (None, None, 0.0)."""
-    restricts = getattr(Disc, "restricts_loads", None)
-    if options.max_ndof is not None or restricts is None \
-            or not restricts(problem, order=options.order, constraints=options.constraints):
+def _nested_inputs(Disc, problem, options, meshes, say):
+    """(levels, inputs, seconds): for a discretization with ``nested_inputs`` and a run without ``max_ndof``, every
+    level as (mesh, seconds to generate it), the keyword arguments per level (None where nothing is handed on)
+    and the time spent on them; else (None, None, 0.0)."""
+    nested = getattr(Disc, "nested_inputs", None)
+    if options.max_ndof is not None or nested is None or options.order != 1:
         return None, None, 0.0
     levels = []
     while True:
@@ -100,8 +100,7 @@ def _nested_loads(Disc, problem, options, meshes, say):
         if mesh is None:
             break
         levels.append((mesh, time.perf_counter() - t0))
-    say(f"loads of levels 0..{len(levels) - 1}: assembling on level {len(levels) - 1}, restricting to the coarser ones")
+    say(f"loads and data of levels 0..{len(levels) - 1}: from level {len(levels) - 1}")
     t0 = time.perf_counter()
-    loads = Disc.nested_loads(problem, [m for m, _ in levels], order=options.order,
-                              constraints=options.constraints)
-    return levels, loads, (time.perf_counter() - t0 if loads is not None else 0.0)
+    inputs = nested(problem, [m for m, _ in levels], order=options.order, constraints=options.constraints)
+    return levels, inputs, (time.perf_counter() - t0 if inputs is not None else 0.0)
