@@ -306,3 +306,24 @@ def test_uniform_runs_use_the_restricted_loads(monkeypatch):
         assert np.array_equal(got[j], want), j
     assert not np.array_equal(got[0], fem.FEMDiscretization(problem, next(problem.domain.meshes(1, arrays=True)),
                                                             order=1).system.F)
+
+
+def test_other_domains_are_generated_level_by_level(monkeypatch):
+    """Only array levels are generated before level 0: a curved domain's NGSolve meshes come one at a time."""
+    from ngcontact.drivers import RunOptions, run_scene
+
+    scene = load_scene("disk")
+    domain_type = type(scene.problem.domain)
+    meshes = domain_type.meshes
+    yielded = []
+
+    def counting(self, levels, arrays=False):
+        for m in meshes(self, levels, arrays=arrays):
+            yielded.append(m)
+            yield m
+
+    monkeypatch.setattr(domain_type, "meshes", counting)
+    seen = []
+    res = run_scene(scene, RunOptions.for_scene(scene, levels=2), on_level=lambda r: seen.append(len(yielded)))
+    assert seen == [1, 2] and len(res.rows) == 2
+    assert res.rows[0]["time_mesh_s"] > 0

@@ -12,12 +12,14 @@ evaluates data.  The levels' arrays are then generated before level 0 (each leve
 """
 from __future__ import annotations
 
+import itertools
 import time
 from typing import Callable, Optional
 
 import numpy as np
 
 from ..discretizations import DISCRETIZATIONS
+from ..domains import ArrayMesh
 from .level import RunResult, iteration_callback, level_row, record_level, solve_level, status, update_rates
 from .resources import next_level_ndof
 
@@ -36,8 +38,8 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
     previous, t_cum = None, 0.0
     # P1 FEM on structured rectangles: levels as arrays, NGSolve meshes only where something asks (domains.ArrayMesh)
     Disc = DISCRETIZATIONS[options.disc]
-    meshes = problem.domain.meshes(options.levels, arrays=Disc.array_meshes)
-    levels, inputs, t_inputs = _nested_inputs(Disc, problem, options, meshes, say)
+    meshes = _timed(problem.domain.meshes(options.levels, arrays=Disc.array_meshes))
+    meshes, inputs, t_inputs = _nested_inputs(Disc, problem, options, meshes, say)
     for level in range(options.levels):
         if level > 0 and options.max_ndof is not None:
             ndof = next_level_ndof(result.rows)
@@ -47,11 +49,11 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
                 say(f"stopped before level {level}: {result.stop_reason}")
                 break
         t0 = time.perf_counter()
-        if levels is None:
-            mesh = next(meshes)
-            t_mesh = time.perf_counter() - t0
-        else:  # generated before level 0: (mesh, its time), released here
-            (mesh, t_mesh), levels[level] = levels[level], None
+        if isinstance(meshes, list):  # generated before level 0, released here
+            (mesh, t_mesh, before), meshes[level] = meshes[level], None
+        else:
+            mesh, t_mesh, before = next(meshes)
+        t_before = t_mesh if before else 0.0  # its generation is not in this level's clock
         level_inputs = None
         if inputs is not None:
             level_inputs, inputs[level] = inputs[level], None
@@ -64,8 +66,7 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
         mesh = level_inputs = None
         if level == options.levels - 1 and t_inputs:
             out.disc.time_assembly += t_inputs  # the finest level's loads and data, before level 0
-        total = time.perf_counter() - t0 + (t_inputs if level == options.levels - 1 else 0.0)
-        total += 0.0 if levels is None else t_mesh
+        total = time.perf_counter() - t0 + t_before + (t_inputs if level == options.levels - 1 else 0.0)
         t_cum += total
         row = level_row(level, out, options, h=problem.domain.h(level), times={"time_mesh_s": t_mesh})
         row.update(time_total_s=total, time_cum_s=t_cum)
@@ -86,21 +87,29 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
     return result
 
 
-def _nested_inputs(Disc, problem, options, meshes, say):
-    """(levels, inputs, seconds): for a discretization with ``nested_inputs`` and a run without ``max_ndof``, every
-    level as (mesh, seconds to generate it), the keyword arguments per level (None where nothing is handed on)
-    and the time spent on them; else (None, None, 0.0)."""
-    nested = getattr(Disc, "nested_inputs", None)
-    if options.max_ndof is not None or nested is None or options.order != 1:
-        return None, None, 0.0
-    levels = []
+def _timed(meshes):
+    """(mesh, seconds to generate it, False) for each level of the iterator ``meshes`` (the last item: generated
+    before the level's clock starts)."""
     while True:
         t0 = time.perf_counter()
         mesh = next(meshes, None)
         if mesh is None:
-            break
-        levels.append((mesh, time.perf_counter() - t0))
+            return
+        yield mesh, time.perf_counter() - t0, False
+
+
+def _nested_inputs(Disc, problem, options, meshes, say):
+    """(meshes, inputs, seconds): for a discretization with ``nested_inputs``, array levels and a run without
+    ``max_ndof``, every level of :func:`_timed` ``meshes`` generated now (a list), the keyword arguments per level
+    (None where nothing is handed on) and the time spent on them; else the levels as they come, None, 0."""
+    nested = getattr(Disc, "nested_inputs", None)
+    if options.max_ndof is not None or nested is None or options.order != 1:
+        return meshes, None, 0.0
+    first = next(meshes, None)
+    if first is None or not isinstance(first[0], ArrayMesh):  # other domains: level by level
+        return itertools.chain([(first[0], first[1], True)] if first is not None else [], meshes), None, 0.0
+    levels = [(m, t, True) for m, t, _ in (first, *meshes)]
     say(f"loads and data of levels 0..{len(levels) - 1}: from level {len(levels) - 1}")
     t0 = time.perf_counter()
-    inputs = nested(problem, [m for m, _ in levels], order=options.order, constraints=options.constraints)
+    inputs = nested(problem, [m for m, _, _ in levels], order=options.order, constraints=options.constraints)
     return levels, inputs, (time.perf_counter() - t0 if inputs is not None else 0.0)
