@@ -6,6 +6,7 @@ import scipy.sparse as sp
 from ngsolve import H1, BilinearForm, LinearForm, dx, grad
 
 import ngcontact.discretizations.fem as fem
+import ngcontact.discretizations.p1_levels as p1_levels
 from ngcontact import CrissCrossSquare, StructuredSquare
 from ngcontact.algebra.sparse import submatrix
 from ngcontact.discretizations.base import scipy_csr
@@ -215,7 +216,7 @@ def test_nested_loads_are_the_assembled_loads_of_every_level(domain):
     restriction P^T F, are its own assembled loads where both quadratures are exact (polynomial loads)."""
     problem = _polynomial_membranes(domain)
     meshes = list(domain.meshes(3, arrays=True))
-    loads = fem.FEMDiscretization.nested_loads(problem, meshes)
+    loads = p1_levels.nested_loads(problem, meshes)
     assert len(loads) == 3
     for j, m in enumerate(domain.meshes(3, arrays=True)):
         disc = fem.FEMDiscretization(problem, m, order=1)
@@ -234,7 +235,7 @@ def test_nested_data_are_the_evaluated_data_of_every_level(scene, domain):
     from dataclasses import replace
 
     problem = replace(load_scene(scene).problem, domain=domain)
-    data = fem.FEMDiscretization.nested_data(problem, list(domain.meshes(3, arrays=True)))
+    data = p1_levels.nested_data(problem, list(domain.meshes(3, arrays=True)))
     assert len(data) == 3
     for j, m in enumerate(domain.meshes(3, arrays=True)):
         disc = fem.FEMDiscretization(problem, m, order=1)
@@ -251,25 +252,25 @@ def test_nested_data_are_the_evaluated_data_of_every_level(scene, domain):
 def test_nested_inputs_apply_to_p1_on_array_hierarchies_only():
     problem = _polynomial_membranes(CrissCrossSquare(n0=2))
     meshes = list(problem.domain.meshes(2, arrays=True))
-    assert fem.FEMDiscretization.nested_loads(problem, meshes, order=2) is None
-    assert fem.FEMDiscretization.nested_loads(problem, meshes, constraints="bernstein") is None
+    assert p1_levels.nested_loads(problem, meshes, order=2) is None
+    assert p1_levels.nested_loads(problem, meshes, constraints="bernstein") is None
     for kw in (dict(order=2), dict(constraints="bernstein")):
-        assert fem.FEMDiscretization.nested_data(problem, meshes, **kw) is None
-        assert fem.FEMDiscretization.nested_inputs(problem, meshes, **kw) is None
+        assert p1_levels.nested_data(problem, meshes, **kw) is None
+        assert p1_levels.nested_inputs(problem, meshes, **kw) is None
     ngmeshes = list(problem.domain.meshes(2))
-    assert fem.FEMDiscretization.nested_inputs(problem, ngmeshes) is None
+    assert p1_levels.nested_inputs(problem, ngmeshes) is None
     ex9 = load_scene("ex9_obstacle").problem  # f = 0: no loads, the data only
     levels = list(ex9.domain.meshes(2, arrays=True))
-    assert fem.FEMDiscretization.nested_loads(ex9, levels) is None
-    assert all(list(kw) == ["data"] for kw in fem.FEMDiscretization.nested_inputs(ex9, levels))
+    assert p1_levels.nested_loads(ex9, levels) is None
+    assert all(list(kw) == ["data"] for kw in p1_levels.nested_inputs(ex9, levels))
     # data that are not functions of the coordinates only: no injection (the level builds its NGSolve mesh)
     from dataclasses import replace
 
     from ngsolve import specialcf
 
     odd = replace(problem, g1=0.1 + 0 * specialcf.mesh_size)
-    assert fem.FEMDiscretization.nested_data(odd, meshes) is None
-    assert list(fem.FEMDiscretization.nested_inputs(odd, meshes)[0]) == ["loads"]
+    assert p1_levels.nested_data(odd, meshes) is None
+    assert list(p1_levels.nested_inputs(odd, meshes)[0]) == ["loads"]
 
 
 def test_loads_of_the_wrong_shape_are_refused():
@@ -277,7 +278,7 @@ def test_loads_of_the_wrong_shape_are_refused():
     mesh = next(problem.domain.meshes(1, arrays=True))
     with pytest.raises(ValueError, match=r"loads: expected 2 vectors of length 13, got shapes \[\(13,\), \(12,\)\]"):
         fem.FEMDiscretization(problem, mesh, order=1, loads=[np.zeros(13), np.zeros(12)])
-    good = fem.FEMDiscretization.nested_data(problem, [mesh])[0]
+    good = p1_levels.nested_data(problem, [mesh])[0]
     with pytest.raises(ValueError, match=r"data: expected the values of \['f1', 'f2', 'g1', 'g2'\] at 13 vertices, "
                                          r"got .*'g2': \(12,\)"):
         fem.FEMDiscretization(problem, mesh, order=1, data={**good, "g2": np.zeros(12)})
@@ -292,14 +293,15 @@ def test_uniform_runs_use_the_restricted_loads(monkeypatch):
 
     scene = load_scene("test1")
     got, evaluations = [], []
-    p1_data = fem._p1_data
-    monkeypatch.setattr(fem, "_p1_data", lambda *a: evaluations.append(1) or p1_data(*a))
+    p1_data = p1_levels._p1_data
+    for module in (fem, p1_levels):  # where the levels and the finest level evaluate
+        monkeypatch.setattr(module, "_p1_data", lambda *a: evaluations.append(1) or p1_data(*a))
     run_scene(scene, RunOptions.for_scene(scene, levels=3),
               on_level=lambda res: got.append(res.discretization.system.F.copy()))
     assert len(evaluations) == 1  # the data are evaluated on the finest level only
     monkeypatch.undo()
     problem = scene.problem
-    inputs = fem.FEMDiscretization.nested_inputs(problem, list(problem.domain.meshes(3, arrays=True)))
+    inputs = p1_levels.nested_inputs(problem, list(problem.domain.meshes(3, arrays=True)))
     assert all(sorted(kw) == ["data", "loads"] for kw in inputs)
     for j, m in enumerate(problem.domain.meshes(3, arrays=True)):
         want = fem.FEMDiscretization(problem, m, order=1, **inputs[j]).system.F

@@ -36,11 +36,12 @@ from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
 from ..domains import DIRICHLET, ArrayMesh
 from ..problems.base import check_data_on_points
-from .base import Discretization, assemble_load, coordinate_only, evaluate_at_points, scipy_csr
+from .base import Discretization, coordinate_only, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
 from .lagrange import LagrangeNodes, meshpoints
 from .nodesets import constraint_node_set
 from .p1 import dirichlet_vertices, p1_matrices, p1_tables
+from .p1_levels import _assemble_load, _p1_data, _zero, nested_inputs
 
 __all__ = ["FEMDiscretization"]
 
@@ -87,11 +88,11 @@ class FEMDiscretization(Discretization):
         the gap's coefficients >= 0 and the multiplier in the dual basis (the same as 'nodal' for p = 1).
     loads : sequence of arrays, optional
         the load vectors (f_a, psi_i) of the fields at all nodes (boundary nodes included), used instead of
-        assembling them; :meth:`nested_loads` gives those of a nested P1 hierarchy.
+        assembling them; :func:`~.p1_levels.nested_loads` gives those of a nested P1 hierarchy.
     data : dict, optional
         P1 on an ArrayMesh that stays arrays: the data at the vertices as the set-up evaluates them (name ->
         values; Dirichlet data at the boundary vertices, zero elsewhere), used instead of evaluating them;
-        :meth:`nested_data` gives those of a nested hierarchy.
+        :func:`~.p1_levels.nested_data` gives those of a nested hierarchy.
     """
 
     name = "fem"
@@ -200,69 +201,9 @@ class FEMDiscretization(Discretization):
 
     @classmethod
     def nested_inputs(cls, problem, meshes, order: int = 1, constraints: str = "nodal") -> Optional[list]:
-        """Per level of a nested array hierarchy (``meshes``: the :class:`~ngcontact.domains.ArrayMesh` levels
-        T_0..T_L of one structured rectangle, each carrying ``ngc_parents``), the keyword arguments that hand the
-        level what is computed once on the finest level: ``loads`` (:meth:`nested_loads`) and ``data``
-        (:meth:`nested_data`), where they apply; None when neither does."""
-        if not (order == 1 and constraints != "bernstein" and _nested_arrays(meshes)):
-            return None
-        out = [{} for _ in meshes]
-        for key, values in (("loads", cls.nested_loads(problem, meshes, order, constraints)),
-                            ("data", cls.nested_data(problem, meshes, order, constraints))):
-            for kw, v in zip(out, values or ()):
-                kw[key] = v
-        return out if any(out) else None
-
-    @classmethod
-    def nested_data(cls, problem, meshes, order: int = 1, constraints: str = "nodal") -> Optional[list]:
-        """The data at the vertices of every level of a nested array hierarchy (as :meth:`nested_loads`), for the
-        ``data`` argument: the finest level's as its discretization evaluates them, each coarser level's their
-        injection (a coarse vertex is the fine vertex whose two parents in ngc_parents are it); None where P1
-        does not stay arrays (data not of the coordinates only, another order or basis) or other meshes."""
-        if not (order == 1 and constraints != "bernstein" and _nested_arrays(meshes)
-                and all(map(coordinate_only, problem.data().values()))):
-            return None
-        finest = meshes[-1]
-        nodes = LagrangeNodes.from_arrays(np.asarray(finest.X, dtype=float), finest.T,
-                                          lambda where: meshpoints(*finest.vertex_location(where)))
-        data = [None] * len(meshes)
-        data[-1] = _p1_data(problem, nodes, np.flatnonzero(finest.dirichlet_vertices()))
-        for j in range(len(meshes) - 1, 0, -1):
-            par = meshes[j].ngc_parents
-            old = np.flatnonzero(par[:, 0] == par[:, 1])
-            nc = meshes[j - 1].nv
-            if len(old) != nc or np.any(np.bincount(par[old, 0], minlength=nc) != 1):
-                return None
-            inj = np.empty(nc, dtype=np.int64)
-            inj[par[old, 0]] = old
-            data[j - 1] = {name: v[inj] for name, v in data[j].items()}
-        return data
-
-    @classmethod
-    def nested_loads(cls, problem, meshes, order: int = 1, constraints: str = "nodal", quad_bonus: int = 6):
-        """The load vectors of every level of a nested array hierarchy (as :meth:`nested_data`), for the ``loads``
-        argument: list per level of ``problem.nfields`` nodal vectors; None when this does not apply (another
-        order or basis, zero loads, other meshes).
-
-        The finest level's vectors are assembled as the discretization of T_L assembles them (the same
-        vectors); each coarser level's are their restriction F_{j-1} = P_j^T F_j.  P1 spaces of nested meshes
-        are nested, a coarse hat function being psi_a + 1/2 sum of the fine hat functions at the midpoints of the
-        edges at a (the table ngc_parents), so P_j^T F_j = (f, psi_{j-1}) integrated with T_L's quadrature:
-        the same functional, integrated more accurately than on the coarse mesh, for the cost of sums instead
-        of an NGSolve mesh, a space and an assembly per level."""
-        if not (order == 1 and constraints != "bernstein" and _nested_arrays(meshes)) \
-                or all(map(_zero, problem.loads)):
-            return None
-        finest = meshes[-1]
-        fes = H1(finest.build(), order=1, dirichlet=DIRICHLET)
-        loads = [None] * len(meshes)
-        loads[-1] = [_assemble_load(fes, f, quad_bonus) for f in problem.loads]
-        for j in range(len(meshes) - 1, 0, -1):
-            a, b = meshes[j].ngc_parents[:, 0], meshes[j].ngc_parents[:, 1]
-            nc = meshes[j - 1].nv
-            loads[j - 1] = [0.5 * (np.bincount(a, weights=F, minlength=nc) + np.bincount(b, weights=F, minlength=nc))
-                            for F in loads[j]]
-        return loads
+        """Per level of a nested array hierarchy, the ``loads`` and ``data`` arguments computed once on the finest
+        level (:func:`~.p1_levels.nested_inputs`), or None."""
+        return nested_inputs(problem, meshes, order, constraints)
 
     # ------------------------------------------------------------------ mesh and space
     @property
@@ -428,40 +369,6 @@ class FEMDiscretization(Discretization):
             emax = max(emax, float(np.max(np.abs(exact_nodal - self.nodes.to_values(nodal[name])))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}
 
-
-
-def _nested_arrays(meshes) -> bool:
-    """Whether ``meshes`` are ArrayMesh levels T_0..T_L, each finer one with its parent table."""
-    return bool(meshes) and all(isinstance(m, ArrayMesh) for m in meshes) \
-        and all(m.ngc_parents is not None and len(m.ngc_parents) == m.nv for m in meshes[1:])
-
-
-def _zero(f) -> bool:
-    """Whether the load ``f`` is NGSolve's zero CoefficientFunction."""
-    return isinstance(f, CoefficientFunction) and str(f) == "ZeroCoefficientFunction"
-
-
-def _assemble_load(fes, f, quad_bonus: int) -> np.ndarray:
-    """(f, phi_i) on ``fes``, assembled with f compiled (the same vector, bitwise, faster)."""
-    v = fes.TestFunction()
-    return assemble_load(fes, lambda: f * v * dx(bonus_intorder=quad_bonus),
-                         lambda: f.Compile() * v * dx(bonus_intorder=quad_bonus))
-
-
-def _p1_data(problem, nodes, boundary: np.ndarray) -> dict:
-    """The data at the nodes as the P1 set-up evaluates them: Dirichlet data at the ``boundary`` nodes only
-    (zero elsewhere; the only nodes where they are used and checked), the others compiled and in one pass over
-    the nodes (:meth:`~ngcontact.discretizations.lagrange.LagrangeNodes.evaluate_many`: the same values, evaluated
-    faster)."""
-    out = {}
-    data = problem.data()
-    inner = [name for name in data if name not in problem.dirichlet_names]
-    if inner:  # one pass over the nodes for all of them
-        out.update(zip(inner, nodes.evaluate_many([data[name] for name in inner])))
-    for name in problem.dirichlet_names:
-        out[name] = np.zeros(nodes.ndof)
-        out[name][boundary] = nodes.evaluate(data[name], boundary)
-    return {name: out[name] for name in data}
 
 
 def _parent_p1_values(previous, fine, values):
