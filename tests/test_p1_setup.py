@@ -153,12 +153,13 @@ def test_p1_matrices_chunks_agree(name):
     assert abs(one - one.T).max() == 0.0
 
 
-@pytest.mark.parametrize("scene", ["ex9_obstacle", "test1"])
-def test_p1_data_in_one_pass_are_the_single_evaluations(scene):
-    """The data evaluated in one pass (a vector CoefficientFunction) are, bitwise, those of one evaluation each."""
+@pytest.mark.parametrize("scene, order", [("ex9_obstacle", 1), ("test1", 1), ("lshape", 3), ("disk_fitted", 2)])
+def test_nodal_data_in_one_pass_are_the_single_evaluations(scene, order):
+    """The data evaluated in one pass (a vector CoefficientFunction) are, bitwise, those of one evaluation each
+    (P1 arrays, and the Lagrange nodes of NGSolve meshes of higher degree, curved included)."""
     problem = load_scene(scene).problem
-    disc = fem.FEMDiscretization(problem, problem.domain.mesh(1), order=1)
-    got = fem._p1_data(problem, disc.nodes, disc.boundary)
+    disc = fem.FEMDiscretization(problem, problem.domain.mesh(1), order=order)
+    got = fem._nodal_data(problem, disc.nodes, disc.boundary)
     assert list(got) == list(problem.data())
     for name, cf in problem.data().items():
         if name in problem.dirichlet_names:
@@ -167,6 +168,11 @@ def test_p1_data_in_one_pass_are_the_single_evaluations(scene):
         else:
             want = disc.nodes.evaluate(cf)
         assert np.array_equal(got[name], want), name
+    # the lifts of the discretization are the Dirichlet data at the boundary nodes, zero inside
+    for lift, g in zip(disc.lift, problem.dirichlet):
+        want = np.zeros(disc.nodes.ndof)
+        want[disc.boundary] = disc.nodes.evaluate(g, disc.boundary)
+        assert np.array_equal(lift, want)
 
 
 def test_parent_pairs_are_kept_for_their_coarse_level_only():
@@ -239,7 +245,7 @@ def test_nested_data_are_the_evaluated_data_of_every_level(scene, domain):
     assert len(data) == 3
     for j, m in enumerate(domain.meshes(3, arrays=True)):
         disc = fem.FEMDiscretization(problem, m, order=1)
-        want = fem._p1_data(problem, disc.nodes, disc.boundary)
+        want = fem._nodal_data(problem, disc.nodes, disc.boundary)
         assert list(data[j]) == list(want)
         for name, v in want.items():
             assert np.abs(data[j][name] - v).max() <= 1e-15 * max(np.abs(v).max(), 1.0), (j, name)
@@ -293,9 +299,9 @@ def test_uniform_runs_use_the_restricted_loads(monkeypatch):
 
     scene = load_scene("test1")
     got, evaluations = [], []
-    p1_data = p1_levels._p1_data
+    p1_data = p1_levels._nodal_data
     for module in (fem, p1_levels):  # where the levels and the finest level evaluate
-        monkeypatch.setattr(module, "_p1_data", lambda *a: evaluations.append(1) or p1_data(*a))
+        monkeypatch.setattr(module, "_nodal_data", lambda *a: evaluations.append(1) or p1_data(*a))
     run_scene(scene, RunOptions.for_scene(scene, levels=3),
               on_level=lambda res: got.append(res.discretization.system.F.copy()))
     assert len(evaluations) == 1  # the data are evaluated on the finest level only
@@ -329,3 +335,19 @@ def test_other_domains_are_generated_level_by_level(monkeypatch):
     res = run_scene(scene, RunOptions.for_scene(scene, levels=2), on_level=lambda r: seen.append(len(yielded)))
     assert seen == [1, 2] and len(res.rows) == 2
     assert res.rows[0]["time_mesh_s"] > 0
+
+
+def test_bit_mask_is_the_bitarray():
+    """base.bit_mask: the bits of a BitArray, as iterating it gives them (free dofs of H1 spaces with Dirichlet
+    parts, all free, none free, empty)."""
+    from ngsolve import H1, BitArray
+
+    from ngcontact.discretizations.base import bit_mask
+
+    mesh = load_scene("lshape").problem.domain.mesh(0)
+    for bits in (H1(mesh, order=3, dirichlet=".*").FreeDofs(), H1(mesh, order=2, dirichlet="").FreeDofs(),
+                 H1(mesh, order=1, dirichlet=".*").FreeDofs(), BitArray([False, True, True, False, True]),
+                 BitArray([False] * 7), BitArray(0)):
+        want = np.array(list(bits), dtype=bool)
+        got = bit_mask(bits)
+        assert got.dtype == bool and np.array_equal(got, want)

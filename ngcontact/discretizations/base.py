@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import LinearForm, TaskManager
 
-__all__ = ["Discretization", "scipy_csr", "assemble_load", "evaluate_at_points", "coordinate_only"]
+__all__ = ["Discretization", "scipy_csr", "bit_mask", "assemble_load", "evaluate_at_points", "coordinate_only"]
 
 
 class Discretization(ABC):
@@ -130,6 +130,23 @@ def scipy_csr(bf_or_mat) -> sp.csr_matrix:
     mat = getattr(bf_or_mat, "mat", bf_or_mat)
     data, indices, indptr = mat.CSR()  # views: copy before the form goes away
     return sp.csr_matrix((np.array(data), np.array(indices), np.array(indptr)), shape=(mat.height, mat.width))
+
+
+def bit_mask(bits) -> np.ndarray:
+    """Boolean numpy copy of an NGSolve/ngcore ``BitArray`` (e.g. ``fes.FreeDofs()``).  Iterating the BitArray
+    from Python costs about 0.25 us per bit; here the set bits come from a projection in C++ (a vector of ones
+    through ``Projector(bits, True)``), a few ns per bit."""
+    from ngsolve import Projector
+    from ngsolve.la import BaseVector
+
+    n = len(bits)
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    ones = BaseVector(n)
+    ones.FV().NumPy()[:] = 1.0
+    out = ones.CreateVector()
+    out.data = Projector(bits, True) * ones
+    return out.FV().NumPy() != 0.0
 
 
 #: node types of a CoefficientFunction tree (its ``str``) whose value at a point depends on the coordinates

@@ -36,12 +36,12 @@ from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
 from ..domains import DIRICHLET, ArrayMesh
 from ..problems.base import check_data_on_points
-from .base import Discretization, coordinate_only, evaluate_at_points, scipy_csr
+from .base import Discretization, bit_mask, coordinate_only, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
 from .lagrange import LagrangeNodes, meshpoints
 from .nodesets import constraint_node_set
 from .p1 import dirichlet_vertices, p1_matrices, p1_tables
-from .p1_levels import _assemble_load, _p1_data, _zero, nested_inputs
+from .p1_levels import _assemble_load, _nodal_data, _zero, nested_inputs
 
 __all__ = ["FEMDiscretization"]
 
@@ -132,7 +132,7 @@ class FEMDiscretization(Discretization):
                 tables = None
                 self.nodes = nodes = BernsteinBasis.build(fes) if constraints == "bernstein" \
                     else LagrangeNodes.build(fes, node_set)
-                free = np.array(list(fes.FreeDofs()), dtype=bool)
+                free = bit_mask(fes.FreeDofs())
             else:
                 self.nodes = nodes = LagrangeNodes.from_p1_tables(fes, *tables)
                 free = ~bnd
@@ -147,10 +147,10 @@ class FEMDiscretization(Discretization):
             if list(data) != list(problem.data()) or any(np.shape(v) != (nodes.ndof,) for v in data.values()):
                 raise ValueError(f"data: expected the values of {list(problem.data())} at {nodes.ndof} vertices, got "
                                  f"{ {k: np.shape(v) for k, v in data.items()} }")
-        elif tables is None:
+        elif constraints == "bernstein":  # coefficients from the values at every node (BernsteinBasis.from_values)
             data = {name: nodes.evaluate(cf) for name, cf in problem.data().items()}
-        else:
-            data = _p1_data(problem, nodes, self.boundary)
+        else:  # nodal values: the Dirichlet data are used at the boundary nodes only
+            data = _nodal_data(problem, nodes, self.boundary)
         check_data_on_points(problem, data, ~free, nodes.coords)
         coef = {name: nodes.from_values(v) for name, v in data.items()}  # coefficients of the interpolants
 

@@ -12,7 +12,7 @@ data at the vertices.  Both are computed once, on T_L, and handed down:
 
 :func:`nested_inputs` gives both per level as keyword arguments of
 :class:`~ngcontact.discretizations.fem.FEMDiscretization` (``loads=``, ``data=``); the set-up helpers the
-discretization shares with them (:func:`_assemble_load`, :func:`_p1_data`) live here.
+discretization shares with them (:func:`_assemble_load`, :func:`_nodal_data`) live here.
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def nested_inputs(problem, meshes, order: int = 1, constraints: str = "nodal") -
 
 
 def nested_data(problem, meshes, order: int = 1, constraints: str = "nodal") -> Optional[list]:
-    """The data at the vertices of every level (name -> values, as :func:`_p1_data` evaluates them): the finest
+    """The data at the vertices of every level (name -> values, as :func:`_nodal_data` evaluates them): the finest
     level's evaluated, each coarser level's their injection; None where P1 does not stay arrays (data not of the
     coordinates only, another order or basis) or other meshes."""
     if not (_applies(meshes, order, constraints) and all(map(coordinate_only, problem.data().values()))):
@@ -52,7 +52,7 @@ def nested_data(problem, meshes, order: int = 1, constraints: str = "nodal") -> 
     nodes = LagrangeNodes.from_arrays(np.asarray(finest.X, dtype=float), finest.T,
                                       lambda where: meshpoints(*finest.vertex_location(where)))
     data = [None] * len(meshes)
-    data[-1] = _p1_data(problem, nodes, np.flatnonzero(finest.dirichlet_vertices()))
+    data[-1] = _nodal_data(problem, nodes, np.flatnonzero(finest.dirichlet_vertices()))
     for j in range(len(meshes) - 1, 0, -1):
         par = meshes[j].ngc_parents
         old = np.flatnonzero(par[:, 0] == par[:, 1])
@@ -99,11 +99,13 @@ def _assemble_load(fes, f, quad_bonus: int) -> np.ndarray:
     v = fes.TestFunction()
     return assemble_load(fes, lambda: f * v * dx(bonus_intorder=quad_bonus),
                          lambda: f.Compile() * v * dx(bonus_intorder=quad_bonus))
-def _p1_data(problem, nodes, boundary: np.ndarray) -> dict:
-    """The data at the nodes as the P1 set-up evaluates them: Dirichlet data at the ``boundary`` nodes only
-    (zero elsewhere; the only nodes where they are used and checked), the others compiled and in one pass over
-    the nodes (:meth:`~ngcontact.discretizations.lagrange.LagrangeNodes.evaluate_many`: the same values, evaluated
-    faster)."""
+
+
+def _nodal_data(problem, nodes, boundary: np.ndarray) -> dict:
+    """The data at the Lagrange nodes (every degree) as the FEM set-up evaluates them: Dirichlet data at the
+    ``boundary`` nodes only (zero elsewhere; the only nodes where they are used and checked), the others compiled
+    and in one pass over the nodes (:meth:`~ngcontact.discretizations.lagrange.LagrangeNodes.evaluate_many`: the
+    same values, evaluated faster)."""
     out = {}
     data = problem.data()
     inner = [name for name in data if name not in problem.dirichlet_names]

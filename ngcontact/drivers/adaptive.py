@@ -92,7 +92,7 @@ def refine(mesh, marked) -> ngsolve.Mesh:
 
 def interior_nodes(mesh, order: int) -> int:
     """Interior Lagrange nodes of P_order on ``mesh`` (= free H1 dofs; cheap, no assembly)."""
-    return int(sum(ngsolve.H1(mesh, order=order, dirichlet=DIRICHLET).FreeDofs()))
+    return ngsolve.H1(mesh, order=order, dirichlet=DIRICHLET).FreeDofs().NumSet()
 
 
 def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = None, newton_callback=None,

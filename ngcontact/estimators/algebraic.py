@@ -52,6 +52,7 @@ from typing import List, Optional
 import numpy as np
 from ngsolve import H1, L2, TRIG, BilinearForm, GridFunction, Integrate, LinearForm, div, dx, grad
 
+from ..discretizations.base import bit_mask
 from ..domains import DIRICHLET
 from .flux import PatchData, equilibrate_all, flux_bonus, patch_regularization, patch_solver, vertex_device_exact
 from .moments import vertex_moment_term, vertex_rule
@@ -71,7 +72,7 @@ def _p1_data(dv: DiscretizationView):
 
         V1 = H1(dv.mesh, order=1, dirichlet=DIRICHLET)
         v = V1.TestFunction()
-        free = np.array(list(V1.FreeDofs()), dtype=bool)
+        free = bit_mask(V1.FreeDofs())
         rule = {TRIG: vertex_rule()}
         vol = LinearForm(v * dx(intrules=rule)).Assemble().vec.FV().NumPy().copy()
         S = None

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 from ngsolve import H1, L2, VOL, CoefficientFunction, GridFunction, IntegrationRule, Trace
 
+from ..discretizations.base import bit_mask
 from ..domains import DIRICHLET
 from .view import DiscretizationView, SolutionView
 
@@ -47,7 +48,7 @@ def boundary_vertices(dv: DiscretizationView) -> np.ndarray:
     c = dv.cache
     if "boundary_vertices" not in c:
         V1 = H1(dv.mesh, order=1, dirichlet=DIRICHLET)
-        c["boundary_vertices"] = ~np.array(list(V1.FreeDofs()), dtype=bool)[:dv.mesh.nv]
+        c["boundary_vertices"] = ~bit_mask(V1.FreeDofs())[:dv.mesh.nv]
     return c["boundary_vertices"]
 
 

@@ -31,6 +31,7 @@ import numpy as np
 from ngsolve import (BND, H1, VOL, BilinearForm, BitArray, CoefficientFunction, ElementId, GridFunction,
                      Integrate, LinearForm, dx, grad)
 
+from ..discretizations.base import bit_mask
 from ..domains import DIRICHLET
 from .view import DiscretizationView
 
@@ -54,7 +55,7 @@ def boundary_strip(dv: DiscretizationView, layers: int):
     mesh = dv.mesh
     ev = dv.element_vertices()
     V1 = H1(mesh, order=1, dirichlet=DIRICHLET)
-    mark = ~np.array(list(V1.FreeDofs()), dtype=bool)[:mesh.nv]   # Dirichlet boundary vertices
+    mark = ~bit_mask(V1.FreeDofs())[:mesh.nv]   # Dirichlet boundary vertices
     strip = np.zeros(mesh.ne, dtype=bool)
     for _ in range(max(int(layers), 1)):
         grown = mark[ev].any(axis=1)
@@ -126,7 +127,7 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
     # w_h: discrete harmonic in the strip, zero on its inner boundary (extended by zero)
     free_v = np.zeros(V.ndof, dtype=bool)
     free_v[_element_dofs(V, strip)] = True
-    free_v &= np.array(list(V.FreeDofs()), dtype=bool)
+    free_v &= bit_mask(V.FreeDofs())
     if inner:
         free_v[_element_dofs(V, halo)] = False
     u, v = V.TnT()

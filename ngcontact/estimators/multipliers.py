@@ -30,6 +30,7 @@ import numpy as np
 from ngsolve import (H1, L2, TRIG, BilinearForm, CoefficientFunction, Discontinuous, GridFunction, IfPos,
                      IntegrationRule, LinearForm, TaskManager, dx)
 
+from ..discretizations.base import bit_mask
 from ..domains import DIRICHLET
 from .boundary import boundary_vertices, contact_band
 from .moments import data_rules, vertex_moments
@@ -122,7 +123,7 @@ class ContactMultiplier:
         self.weight = GridFunction(P0, name="contact_weight")
         if "contact_fit_space" not in dv.cache:
             V = H1(mesh, order=1, dirichlet=DIRICHLET)  # the interior vertices carry constraints
-            dv.cache["contact_fit_space"] = (V, np.array(list(V.FreeDofs()), dtype=bool))
+            dv.cache["contact_fit_space"] = (V, bit_mask(V.FreeDofs()))
         self.V, self._free = dv.cache["contact_fit_space"]
         u, v = self.V.TnT()
         m0 = self.Psi.T @ (dv.D * np.maximum(np.asarray(y_marker, float), 0.0))

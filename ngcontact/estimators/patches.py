@@ -62,6 +62,7 @@ import numpy as np
 from ngsolve import (H1, VOL, BilinearForm, CoefficientFunction, Discontinuous, ElementId, GridFunction,
                      LinearForm, TaskManager, dx)
 
+from ..discretizations.base import bit_mask
 from .mixed_blocks import ElementBlocks
 from .opposite_edges import OppositeEdges
 
@@ -178,7 +179,7 @@ class PatchSolver:
 
         # patches: pairs (vertex a, element K, local index i) sorted by a
         free = np.ones(X.ndof, dtype=bool)
-        free[offF:] = np.array(list(F.FreeDofs()), dtype=bool)    # V and Q dofs are all free
+        free[offF:] = bit_mask(F.FreeDofs())    # V and Q dofs are all free
         a_of = ev.ravel()
         order = np.argsort(a_of, kind="stable")
         self.pair_K = order // 3

@@ -40,6 +40,7 @@ import numpy as np
 from ngsolve import (BND, L2, SEGM, TRIG, BilinearForm, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
                      Integrate, IntegrationRule, LinearForm, VectorL2, div, dx, grad, x, y)
 
+from ..discretizations.base import bit_mask
 from ..domains import DIRICHLET
 from .nonnegative import QuadratureArrays, nonnegative_multiplier
 from .options import EstimatorOptions
@@ -115,7 +116,7 @@ class P0Dual:
         self._A = csr_matrix(tuple(np.array(m) for m in a.mat.CSR()), shape=(self.W.ndof, self.W.ndof))
         # SuperLU of the free block (an NGSolve inverse applied inside a TaskManager was ~8x slower here), in its
         # symmetric mode (A is SPD: minimum degree on A + A^T, diagonal pivots; factors about half as large)
-        self._free = np.flatnonzero(np.array(list(self.W.FreeDofs()), dtype=bool))
+        self._free = np.flatnonzero(bit_mask(self.W.FreeDofs()))
         self._inv = splu(self._A[self._free][:, self._free].tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                          options={"SymmetricMode": True})
         self.centroid = GridFunction(VectorL2(mesh, order=0))
