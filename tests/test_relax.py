@@ -10,6 +10,7 @@ from ngcontact.algebra.relax import FreeBoundaryRelaxation
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.drivers import RunOptions, run_scene
 from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton.stopping import EstimatorStop
 from ngcontact.scenes import load_scene
 
 
@@ -110,12 +111,13 @@ def test_multigrid_newton_with_relaxation_takes_fewer_steps_to_the_same_solution
 
 
 class _SolutionStrategy:
-    """A linear-solve strategy whose every step returns (x*, y*); step 1 marks it provisional."""
+    """A linear-solve strategy whose every step returns (x*, y*) (perturbed by ``offset`` at step 1); step 1 marks
+    its point provisional."""
 
     from ngcontact.newton.base import IterationRecord as record_type
 
-    def __init__(self, x, y):
-        self.x, self.y = x, y
+    def __init__(self, x, y, offset=0.0):
+        self.x, self.y, self.offset = x, y, offset
 
     def start(self, system, estimates):
         return self
@@ -125,14 +127,21 @@ class _SolutionStrategy:
     def step(self, k, x, y, c, Ca, Cb, res_prev):
         from ngcontact.newton.linear import Trial
 
-        return Trial(self.x.copy(), self.y.copy(), 0.0, {}, provisional=(k == 1))
+        return Trial(self.x + (self.offset if k == 1 else 0.0), self.y.copy(), 0.0, {}, provisional=(k == 1))
 
     def after_step(self, k, x, y, step):
         return {}
 
 
-def test_the_loop_does_not_stop_at_a_provisional_point():
-    """Step 1 hands the loop the exact solution as a provisional point: the loop takes one more step."""
+class _AlwaysStop(EstimatorStop):
+    """A stopping rule whose own test accepts every iterate, its certificate recorded, not required (as the adaptive
+    rule may, above the residual test)."""
+
+    def check(self, rec, tol):
+        return "balanced"
+
+
+def _ex9_solution():
     problem = load_scene("ex9_obstacle").problem
     disc = FEMDiscretization(problem, list(problem.domain.meshes(3))[2], order=1)
     s = disc.system
@@ -140,12 +149,40 @@ def test_the_loop_does_not_stop_at_a_provisional_point():
     sol = semismooth_newton(s, x, y, NewtonOptions())
     assert sol.converged
     d = s.data_scale()  # the loop iterates on the data / d
-    res = semismooth_newton(s, x, y, NewtonOptions(), linear=_SolutionStrategy(sol.x / d, sol.y / d))
-    assert res.converged and res.iterations == 2
+    return s, x, y, sol.x / d, sol.y / d
+
+
+def test_a_provisional_point_stops_the_loop_by_the_residual_test():
+    """Step 1 hands the loop the exact solution as a provisional point: the residual test and the certificate hold
+    there, and the loop stops at it."""
+    s, x, y, xs, ys = _ex9_solution()
+    res = semismooth_newton(s, x, y, NewtonOptions(), linear=_SolutionStrategy(xs, ys))
+    assert res.converged and res.iterations == 1 and res.reason == "converged"
+
+
+def test_a_provisional_point_is_not_accepted_by_the_other_tests_of_a_rule():
+    """A provisional point off the solution (residual above tol) is not accepted by a rule whose own test would
+    accept it; the next (exact) step is."""
+    s, x, y, xs, ys = _ex9_solution()
+    offset = 1e-6 * np.abs(xs).max()
+    res = semismooth_newton(s, x, y, NewtonOptions(), linear=_SolutionStrategy(xs, ys, offset), stop=_AlwaysStop())
+    assert res.history[1].res > NewtonOptions().tol
+    assert res.converged and res.iterations == 2 and res.reason == "balanced"
+    # the same rule stops at once at a point that is not provisional
+    plain = semismooth_newton(s, x, y, NewtonOptions(), linear=_NotProvisional(xs, ys, offset), stop=_AlwaysStop())
+    assert plain.iterations == 1
+
+
+class _NotProvisional(_SolutionStrategy):
+    def step(self, k, x, y, c, Ca, Cb, res_prev):
+        trial = super().step(k, x, y, c, Ca, Cb, res_prev)
+        trial.provisional = False
+        return trial
 
 
 def test_relaxed_iterates_are_handed_over_as_provisional(monkeypatch):
-    """The multigrid session marks exactly the relaxed iterates provisional (the loop then never stops at one)."""
+    """The multigrid session marks exactly the relaxed iterates provisional (the loop then stops at one by the
+    residual test only)."""
     import ngcontact.newton.multigrid as mg
 
     seen = []
