@@ -134,8 +134,8 @@ def scipy_csr(bf_or_mat) -> sp.csr_matrix:
 
 def bit_mask(bits) -> np.ndarray:
     """Boolean numpy copy of an NGSolve/ngcore ``BitArray`` (e.g. ``fes.FreeDofs()``).  Iterating the BitArray
-    from Python costs about 0.25 us per bit; here the set bits come from a projection in C++ (a vector of ones
-    through ``Projector(bits, True)``), a few ns per bit."""
+    from Python takes one Python-level call per bit; here the set bits come from one projection in C++ (a vector
+    of ones through ``Projector(bits, True)``)."""
     from ngsolve import Projector
     from ngsolve.la import BaseVector
 
