@@ -167,8 +167,13 @@ class PatchSolver:
         A_II, A_VF, fdofs = blocks.A_II, blocks.A_VF, blocks.fdofs
         nF3, ns = fdofs.shape[1], blocks.nshapes
         self.blocks = blocks
-        # per element shape (one per element without shared shapes): W = A_II^{-1} A_IF, S_K = -A_FI W
-        W = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ns, nQ, nF3))], axis=1))
+        # per element shape (one per element without shared shapes): W = A_II^{-1} A_IF, S_K = -A_FI W.  With shapes
+        # shared by elements, A_II^{-1} per shape is formed here once: W from it, and its RT rows kept for solve()
+        if blocks.shape is not None:
+            Ainv = np.linalg.inv(A_II)
+            W, A_II_inv = Ainv[:, :, :nV] @ A_VF, np.ascontiguousarray(Ainv[:, :nV, :])  # W = A_II^{-1} [A_VF; 0]
+        else:
+            W, A_II_inv = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ns, nQ, nF3))], axis=1)), None
         S_K = -np.einsum("kvf,kvg->kfg", A_VF, W[:, :nV, :])
         self.W_t = np.ascontiguousarray(W.transpose(0, 2, 1))                         # (ns, nF3, nI)
         self.W_V = np.ascontiguousarray(W[:, :nV, :])                                 # (ns, nV, nF3)
@@ -213,7 +218,7 @@ class PatchSolver:
             interior = ~fixed.any(axis=1) & ~fixed_O[pairs].any(axis=1)  # null mode (r, m) = (1, 1)
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
-        self.A_II_inv = None  # formed with the patch inverses
+        self.A_II_inv = A_II_inv  # without shapes: formed with the patch inverses
         self._ops = {}
         self._fixed = {}
         self._inv_cache = {}
@@ -225,7 +230,6 @@ class PatchSolver:
         self.nE = self.elim.nE
         self._keep_inverses = nbytes <= self.CACHE_BYTES
         self.hats = local_hats(mesh)  # local-vertex hat functions (barycentric coordinates of K)
-
 
     #: patches per batched solve (bounded work arrays: the first touch of fresh memory costs as
     #: much as the arithmetic here)
@@ -435,8 +439,8 @@ class PatchSolver:
             gE, gO = self.elim.rhs(g)  # the opposite edges eliminated per element (.opposite_edges)
             msum = self.elim.facet_sums(self._patch_loop(gE, nf), gO)
         bsum = b.sum(axis=1)                                                          # (nf, ne, nI)
-        if self.A_II_inv is None and (self._calls >= self._inverse_from or blocks.shape is not None):
-            # the RT rows of A_II^{-1} per shape: kept for the next calls, or cheap (shapes shared by elements)
+        if self.A_II_inv is None and self._calls >= self._inverse_from:
+            # the RT rows of A_II^{-1} per element: kept for the next calls (with shapes: formed in __init__)
             self.A_II_inv = np.ascontiguousarray(np.linalg.inv(blocks.A_II)[:, :nV, :])
         if self.A_II_inv is None:  # one block per element
             xb = np.linalg.solve(blocks.A_II, bsum.transpose(1, 2, 0))[:, :nV]          # (ne, nV, nf)
