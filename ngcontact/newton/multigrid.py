@@ -33,8 +33,8 @@ there, not handed on) and its certificate only, never by the other tests of a ru
 converged solution then agrees with the direct solves' to the Newton tolerance rather than to the CG target (nested
 test 1 at 2M unknowns: max nodal error 1.5200149e-7 against 1.5200150e-7, energy error equal to 11 digits), and the
 finest level's Newton steps fall from 8 to 3 (5 when the loop did not stop at relaxed points: on the degenerate band
-of test 1, where u1 - u2 and lambda both vanish, the step after a relaxed point that passes the test flips a few
-rows there and the next one flips them back).
+of test 1, where u1 - u2 and lambda both vanish, the step after a relaxed point that passes the test changes the
+class of a few rows there and leaves a complementarity defect, which one more step removes).
 
 The hierarchy is reused while the row classes of the steps do not change (the last Newton-min
 step, which confirms the active set, then costs a few CG iterations); when at most
