@@ -222,6 +222,34 @@ def test_nonconformity_estimator_sees_a_kg_violation(solved_scene):
     assert est.i_eff >= 1.0
 
 
+def test_gap_terms_are_integrated_on_the_negative_support_only(solved_scene):
+    """eta_nonc,1, Theta and |||s~_h - (s_h + w_h)||| integrate IfPos(-gap, ., 0) terms over the elements where
+    the gap is negative at a point of the rule only: the same numbers as over the whole mesh (a P2 Newton
+    iterate with u1h < u2h on part of the mesh); the values of n = max(-gap, 0) at the points of the
+    concentration rule are those of the gap's."""
+    from ngsolve import IfPos
+
+    from ngcontact.estimators.terms import (Integrals, admissible_correction, contact_work, corrected_fields,
+                                            nonconformity, split)
+
+    scene, disc, sol = solved_scene("disk", 1, 2, maxit=1)
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    dv, fields = sv.disc, sv.fields
+    ig = Integrals.of(dv, EstimatorOptions())
+    vals, grads, gap, ggap = corrected_fields(dv, fields, [None] * len(fields))
+    nc = nonconformity(sv, ig, gap, ggap, exact_bc=False)
+    assert nc.pointwise and 0 < nc.support.sum() < dv.mesh.ne
+    whole = split(dv.mus)[1] * np.maximum(ig.ew(IfPos(-gap, ggap * ggap, 0.0)), 0.0)
+    assert np.abs(nc.loc - whole).max() <= 1e-14 * whole.max()
+    theta = contact_work(ig, fields, grads, nc.n, nc.grad_n, nc.support)
+    theta_whole = contact_work(ig, fields, grads, nc.n, nc.grad_n)
+    assert theta != 0.0 and abs(theta - theta_whole) <= 1e-13 * abs(theta_whole)
+    d, corr, support = admissible_correction(ig, dv.mus, gap, ggap, exact_polynomial_gap=False)
+    assert np.array_equal(support, nc.support) and abs(d - nc.eta) <= 1e-13 * nc.eta
+    qa = ig.quadrature(10)
+    assert np.array_equal(nc.values(qa, qa.values(gap)), qa.values(nc.n))
+
+
 @pytest.mark.slow
 def test_estimation_time_vs_newton_at_1e5_dofs():
     """Benchmark (issue 4): estimation <= 2 x Newton solve time, disk P1 level 4 (103491 dofs).

@@ -1,7 +1,7 @@
 """The batched patch solver (ngcontact.estimators.patches) against NGSolve's PatchwiseSolve."""
 import numpy as np
 import pytest
-from ngsolve import Integrate, dx, sqrt
+from ngsolve import CoefficientFunction, Integrate, dx, sqrt
 
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.estimators import EstimatorOptions, normal_jump, reconstruct_fluxes
@@ -167,3 +167,19 @@ def test_expected_repeats_use_the_sparse_step_from_the_first_call(scene, p, leve
     S = patch_solver(DiscretizationView.of(disc), p)
     assert S._patch_ops is not None and S._calls == 1
     _same_fluxes(loop, first, disc.mesh)
+
+
+@pytest.mark.parametrize("scene,p,level", [("lshape", 3, 0), ("disk", 2, 0)])
+def test_patch_solver_constant_one_is_the_projection_of_one(scene, p, level):
+    """The P_q coefficients of w = 1 on every element (the compatibility of the interior patches) from the moments
+    (1, w_j)_K and the inverse element mass: those of NGSolve's Set(1), straight and curved (disk) elements."""
+    from ngsolve import GridFunction
+
+    disc, sol = _solved(scene, p, level)
+    S = patch_solver(DiscretizationView.of(disc), p)
+    ref = GridFunction(S.X.components[1])
+    ref.Set(1.0)
+    expect = ref.vec.FV().NumPy().reshape(S.one_Q.shape)
+    assert np.abs(S.one_Q - expect).max() <= 1e-12
+    assert np.allclose((S.one_Q * S.mass_Q).sum(axis=1), Integrate(CoefficientFunction(1.0) * dx, disc.mesh, element_wise=True).NumPy(),
+                       rtol=1e-12, atol=0.0)

@@ -343,9 +343,9 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
             vals, grads, gap, ggap = corrected_fields(dv, fields, ws)
             lam_d = sv.gfs["lam"]  # the discrete (dual-basis for p >= 2) multiplier of the seed
             shared["seed"] = C_om * math.sqrt(max(float(negative_part_squares(ig, lam_d).sum()), 0.0))
-            nonc1, corr, gcorr, nonc1_K = nonconformity(sv, ig, gap, ggap, exact_bc=all(w is None for w in ws))
-            shared.update(fields=(vals, grads, gap, ggap), nonc1=(nonc1, corr, gcorr, nonc1_K),
-                          theta=contact_work(ig, fields, grads, corr, gcorr))
+            nc = nonconformity(sv, ig, gap, ggap, exact_bc=all(w is None for w in ws))
+            shared.update(fields=(vals, grads, gap, ggap), nonc1=(nc.eta, nc.n, nc.grad_n, nc.loc), nc=nc,
+                          theta=contact_work(ig, fields, grads, nc.n, nc.grad_n, nc.support))
         vals, grads, gap, ggap = shared["fields"]
         nonc1, corr, gcorr, nonc1_K = shared["nonc1"]
         nonc2_seed, theta = shared["seed"], shared["theta"]
@@ -358,7 +358,8 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
             # lam~ moved towards the small gaps inside every element (:func:`concentrated_multiplier`)
             if "qa" not in shared:
                 qa = ig.quadrature(2 * p + 6)
-                shared["qa"] = qa, qa.values(gap), qa.values(corr)
+                gap_v = qa.values(gap)
+                shared["qa"] = qa, gap_v, shared["nc"].values(qa, gap_v)
             qa, gap_v, corr_v = shared["qa"]
             lam_v = qa.values(lam_t)
             lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + corr_v, ig.h, ig.C_mu,

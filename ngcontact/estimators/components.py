@@ -316,11 +316,12 @@ def _disc_fluxes(sv: SolutionView, q: int, lam_p, lam_n, lam_hat, r_hat, use_p1:
     return sig_d, data
 
 
-def _contact_terms(ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, corr_d, c, ref: float, nonc2_d: float):
+def _contact_terms(ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, corr_d, c, ref: float, nonc2_d: float,
+                   support_d=None):
     """(eta_C,K, nonc2_disc, nonc3_disc, nonc3_lin, Theta_disc, Theta_lin) by quadrature (module doc): lam~ moved
     towards the small gaps in every element, as in :func:`.bound.estimate` (the mean-free defect goes to
     eta_nonc2,disc); Theta of the direct bound split like the corrections: s~ - s_h - w_h (disc), s_h - u_h
-    (lin)."""
+    (lin); ``support_d``: the elements outside of which corr_d vanishes at the points of the rule of ``dxq``."""
     qa = ig.quadrature(2 * p + 6)
     lam_v, gap_v = qa.values(lam_t), qa.values(gap)
     cd_v, cl_v = qa.values(corr_d), qa.values(c)
@@ -331,7 +332,8 @@ def _contact_terms(ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, 
     nonc3_d = 2.0 * float(qa.integrate(lam_v * cd_v).sum())
     nonc3_l = 2.0 * float(qa.integrate(lam_v * cl_v).sum())
     zero2 = CoefficientFunction((0.0, 0.0))
-    theta_d = contact_work(ig, fields, grads, corr_d, IfPos(-gap_s, -ggap_s, zero2)) if corr_d is not None else 0.0
+    theta_d = contact_work(ig, fields, grads, corr_d, IfPos(-gap_s, -ggap_s, zero2), support_d) \
+        if corr_d is not None else 0.0
     theta_l = contact_work(ig, fields, grads, c, grad(c)) if c is not None else 0.0
     return eta_C, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l
 
@@ -415,7 +417,8 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
         else:
             c, loc_l, d_l = None, np.zeros(mesh.ne), 0.0
             gap_s, ggap_s = gap, ggap
-        d_d, corr_d = admissible_correction(ig, mus, gap_s, ggap_s, exact_polynomial_gap=(p == 1 and exact_bc))
+        d_d, corr_d, support_d = admissible_correction(ig, mus, gap_s, ggap_s,
+                                                       exact_polynomial_gap=(p == 1 and exact_bc))
 
         # ------------------------------------------------------------ contact terms
         # lam~ moved towards the small gaps in every element, as in :func:`.bound.estimate`
@@ -426,7 +429,7 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
         else:
             eta_C, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l = _contact_terms(
                 ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, corr_d, c,
-                eta_FR + eta_quad + nonc2_d + nonc2_l + 2.0 * (d_d + d_l), nonc2_d)
+                eta_FR + eta_quad + nonc2_d + nonc2_l + 2.0 * (d_d + d_l), nonc2_d, support_d)
         sum_C = float(eta_C.sum())
         P_lin = 2.0 * float((dv.D * np.maximum(sv.y, 0.0) * g_nodal).sum())  # discrete complementarity product
     # 2P = sum_C + nonc3 = (sum_C - P_lin + nonc3_d) + (P_lin + nonc3_l) <= 2P_disc + 2P_lin

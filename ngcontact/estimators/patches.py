@@ -150,11 +150,12 @@ class PatchSolver:
         zf = GridFunction(F)
         zf.Set(CoefficientFunction(1.0), dual=True)                # facet vector of the constant 1
         z_glob = np.concatenate([np.zeros(V.ndof + Q.ndof), np.round(zf.vec.FV().NumPy(), 12)])
-        q1 = GridFunction(Q)
-        q1.Set(CoefficientFunction(1.0))
         w_ = Q.TestFunction()
         with TaskManager():
-            mq = LinearForm(w_ * dx).Assemble().vec.FV().NumPy().copy()
+            moments = LinearForm(w_ * dx).Assemble().vec                    # (1, w_j)_K
+        q1 = GridFunction(Q)
+        q1.vec.data = moments
+        Q.SolveM(q1.vec)  # the L2 projection of 1 onto P_q(K), i.e. 1 (element-wise inverse mass, exact when curved)
         ne = mesh.ne
         nV = len(V.GetDofNrs(ElementId(VOL, 0)))
         nQ = len(Q.GetDofNrs(ElementId(VOL, 0)))
@@ -174,12 +175,12 @@ class PatchSolver:
             W, A_II_inv = Ainv[:, :, :nV] @ A_VF, np.ascontiguousarray(Ainv[:, :nV, :])  # W = A_II^{-1} [A_VF; 0]
         else:
             W, A_II_inv = np.linalg.solve(A_II, np.concatenate([A_VF, np.zeros((ns, nQ, nF3))], axis=1)), None
-        S_K = -np.einsum("kvf,kvg->kfg", A_VF, W[:, :nV, :])
+        S_K = -(A_VF.transpose(0, 2, 1) @ W[:, :nV, :])
         self.W_t = np.ascontiguousarray(W.transpose(0, 2, 1))                         # (ns, nF3, nI)
         self.W_V = np.ascontiguousarray(W[:, :nV, :])                                 # (ns, nV, nF3)
         self.nV, self.nQ, self.nI, self.nF3, self.offQ, self.offF = nV, nQ, nI, nF3, offQ, offF
         self.one_Q = q1.vec.FV().NumPy().reshape(ne, nQ).copy()  # coefficients of w = 1 on every K
-        self.mass_Q = mq.reshape(ne, nQ)                           # (1, phi_j)_K
+        self.mass_Q = moments.FV().NumPy().reshape(ne, nQ).copy()  # (1, phi_j)_K
         area = (self.one_Q * self.mass_Q).sum(axis=1)
 
         # patches: pairs (vertex a, element K, local index i) sorted by a

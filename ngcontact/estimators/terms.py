@@ -35,9 +35,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
-from ngsolve import (BND, L2, SEGM, TRIG, BilinearForm, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
+from ngsolve import (BND, L2, SEGM, TRIG, BilinearForm, BitArray, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
                      Integrate, IntegrationRule, LinearForm, VectorL2, div, dx, grad, x, y)
 
 from ..discretizations.base import bit_mask
@@ -47,7 +48,7 @@ from .options import EstimatorOptions
 from .view import DiscretizationView, SolutionView
 
 __all__ = ["Integrals", "element_diameters", "friedrichs_constant", "P0Dual", "flux_residual", "flux_rule_order",
-           "mean_term", "defect_norm", "negative_part_squares", "nonnegative_part", "corrected_fields", "split", "nonconformity",
+           "mean_term", "defect_norm", "negative_part_squares", "nonnegative_part", "corrected_fields", "split", "Nonconformity", "nonconformity",
            "admissible_correction", "contact_work", "direct_root"]
 
 J01 = 2.404825557695773  # first zero of the Bessel function J0
@@ -206,6 +207,17 @@ class Integrals:
         return Integrate(cf.Compile() * (self.dxq if dxx is None else dxx), self.mesh,
                          element_wise=True).NumPy().copy()
 
+    def dxq_on(self, elements: np.ndarray):
+        """``dxq`` restricted to the elements of the mask ``elements`` (the same rule on each of them)."""
+        return dx(bonus_intorder=self.bonus, definedonelements=BitArray(np.asarray(elements, dtype=bool).tolist()))
+
+    def negative_support(self, gap) -> np.ndarray:
+        """The elements where ``gap`` < 0 at a point of the rule of ``dxq`` (bool mask): elsewhere IfPos(-gap, ., 0),
+        the negative part of the gap and its gradient vanish at every point of that rule, so the ``dxq`` integrals
+        of integrands with that factor (:func:`nonconformity`, :func:`contact_work`) need only these elements
+        (the same numbers; contact is a small part of the mesh)."""
+        return self.ew(IfPos(-gap, 1.0, 0.0)) > 0.0
+
 
 def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None, fl_rule=None):
     """eta_F,K,a, eta_R,K,a (arrays (nfields, ne)), eta_FR = (sum_K sum_a (eta_F + eta_R)^2)^{1/2} and
@@ -304,36 +316,57 @@ def split(mus):
     return t, mus[0] * t ** 2 + (mus[1] * (1 - t) ** 2 if len(mus) == 2 else 0.0)
 
 
-def nonconformity(sv: SolutionView, ig: Integrals, gap, ggap, exact_bc: bool):
-    """eta_nonc,1 = |||s~_h - u~_h||| and n = (s~1 - s~2) - d_h >= 0 for the s~_h of the module docstring.
+@dataclass(frozen=True, eq=False)
+class Nonconformity:
+    """The result of :func:`nonconformity`: eta_nonc,1, n, grad n (None when n = 0), the element parts of
+    eta_nonc,1^2 (for the marking indicators, or None), ``pointwise``: n is the pointwise negative part max(-d, 0)
+    of the gap d (its values are then those of the gap's), and ``support``: a mask of the elements outside of which
+    n and grad n vanish at every point of the rule of ``dxq`` (None: the whole mesh)."""
 
-    Returns
-    -------
-    (float, CoefficientFunction or None, CoefficientFunction or None, ndarray or None)
-        eta_nonc,1, n, grad n and the element parts of eta_nonc,1^2 (for the marking indicators).
-    """
+    eta: float
+    n: object
+    grad_n: object
+    loc: Optional[np.ndarray]
+    pointwise: bool = False
+    support: Optional[np.ndarray] = None
+
+    def values(self, qa: QuadratureArrays, gap_values: np.ndarray) -> np.ndarray:
+        """n at the points of ``qa``, given the gap's values there: max(-gap, 0) when n is the pointwise
+        negative part (the same numbers as evaluating n, one evaluation less), else evaluated."""
+        return np.maximum(-gap_values, 0.0) if self.pointwise else qa.values(self.n)
+
+
+def nonconformity(sv: SolutionView, ig: Integrals, gap, ggap, exact_bc: bool) -> Nonconformity:
+    """eta_nonc,1 = |||s~_h - u~_h||| and n = (s~1 - s~2) - d_h >= 0 for the s~_h of the module docstring
+    (:class:`Nonconformity`)."""
     dv = sv.disc
     _, weight = split(dv.mus)
+    support = None
     if dv.order == 1 and dv.nfields == 2 and exact_bc:
         # seed: nodal averaging where (u1h - u2h)(a) < 0; s~ - u_h = (t, -(1-t)) I_1(d^-)
         nodal = sv.nodal_fields()
         neg = np.maximum(nodal["u2"] - nodal["u1"], 0.0)
         if not neg.any():
-            return 0.0, None, None, None
+            return Nonconformity(0.0, None, None, None)
         corr = dv.function(neg)
         gcorr = grad(corr)
         val_K = Integrate(gcorr * gcorr * dx, ig.mesh, element_wise=True).NumPy().copy()
     else:
         # pointwise negative part of the gap: grad d^- = -grad d on {d < 0}
-        val_K = ig.ew(IfPos(-gap, ggap * ggap, 0.0))
+        support = ig.negative_support(gap)
+        val_K = np.zeros(ig.mesh.ne)
+        if support.any():
+            val_K = Integrate((IfPos(-gap, ggap * ggap, 0.0)).Compile() * ig.dxq_on(support), ig.mesh,
+                              element_wise=True).NumPy().copy()
         corr = IfPos(-gap, -gap, 0.0)
         gcorr = IfPos(-gap, -ggap, CoefficientFunction((0.0, 0.0)))
     loc = weight * np.maximum(val_K, 0.0)
-    return math.sqrt(float(loc.sum())), corr, gcorr, loc
+    return Nonconformity(math.sqrt(float(loc.sum())), corr, gcorr, loc, pointwise=support is not None, support=support)
 
 
 def admissible_correction(ig: Integrals, mus, gap_s, ggap_s, exact_polynomial_gap: bool):
-    r"""(|||s~_h - (s_h + w_h)|||, (g_s)^-) for the pointwise negative part of the gap of s_h + w_h
+    r"""(|||s~_h - (s_h + w_h)|||, (g_s)^-, the elements where (g_s)^- is not zero at a point of the rule of
+    ``dxq``, :meth:`Integrals.negative_support`) for the pointwise negative part of the gap of s_h + w_h
     (:mod:`.components`).
 
     The seed's p >= 2 step 2-3 adds c_K Psi_K / 2 with c_K = min{c > 0 : (s1h - s2h)|_K + c Psi_K >= 0};
@@ -345,23 +378,26 @@ def admissible_correction(ig: Integrals, mus, gap_s, ggap_s, exact_polynomial_ga
     """
     _, weight = split(mus)
     if exact_polynomial_gap:  # P1 gap with nonnegative nodal values: >= 0 everywhere
-        return 0.0, None
-    val = Integrate(IfPos(-gap_s, ggap_s * ggap_s, 0.0) * ig.dxq, ig.mesh)
-    return math.sqrt(weight * max(val, 0.0)), IfPos(-gap_s, -gap_s, 0.0)
+        return 0.0, None, None
+    support = ig.negative_support(gap_s)  # (g_s)^- vanishes at the points of the rule elsewhere
+    val = float(Integrate(IfPos(-gap_s, ggap_s * ggap_s, 0.0).Compile() * ig.dxq_on(support), ig.mesh)) \
+        if support.any() else 0.0
+    return math.sqrt(weight * max(val, 0.0)), IfPos(-gap_s, -gap_s, 0.0), support
 
 
-def contact_work(ig: Integrals, fields, grads, corr, gcorr) -> float:
+def contact_work(ig: Integrals, fields, grads, corr, gcorr, support: Optional[np.ndarray] = None) -> float:
     """Theta = sum_a mu_a (grad u~_ah, grad v_a) - (f_a, v_a) for v = (t n, -(1 - t) n) (obstacle: v = n),
     n = (s~1 - s~2) - d_h the nonnegative correction of :func:`nonconformity` (module doc of
-    :mod:`.bound`, "Direct bound"); 0 when n = 0."""
-    if corr is None:
+    :mod:`.bound`, "Direct bound"); 0 when n = 0.  ``support``: the elements outside of which n and grad n vanish
+    at the points of the rule (:attr:`Nonconformity.support`; None: the whole mesh)."""
+    if corr is None or (support is not None and not support.any()):
         return 0.0
     t, _ = split([fd.mu for fd in fields])
     coef = (t, -(1.0 - t)) if len(fields) == 2 else (1.0,)
     cf = CoefficientFunction(0.0)
     for c, fd, gu in zip(coef, fields, grads):
         cf = cf + c * (fd.mu * InnerProduct(gu, gcorr) - fd.f * corr)
-    return float(Integrate(cf.Compile() * ig.dxq, ig.mesh))
+    return float(Integrate(cf.Compile() * (ig.dxq if support is None else ig.dxq_on(support)), ig.mesh))
 
 
 def direct_root(A: float, B: float) -> float:
