@@ -225,8 +225,11 @@ class ElementBlocks:
         return out
 
 
-#: resolution of the shape key of :func:`shapes`: G rounded to 2^-44 of its largest entry (~6e-14 relative)
-SHAPE_BITS = 44
+#: resolution of the shape key of :func:`shapes`: G rounded to 2^-30 of its largest entry (~1e-9 relative).  The
+#: rounding of the bisection midpoints accumulates over the levels of an adaptive run, so that a much finer key
+#: (2^-44) splits the similar triangles of a deep adaptive mesh into several shapes; at 2^-30 the RT mass block of
+#: an element is that of its representative to ~1e-9 relative, and the fluxes stay exactly equilibrated (:func:`shapes`)
+SHAPE_BITS = 30
 
 
 def shapes(cls: np.ndarray, coef: np.ndarray):

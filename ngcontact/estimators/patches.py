@@ -220,9 +220,7 @@ class PatchSolver:
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
         self.A_II_inv = A_II_inv  # without shapes: formed with the patch inverses
-        self._ops = {}
-        self._fixed = {}
-        self._inv_cache = {}
+        self._ops, self._fixed, self._inv_cache = {}, {}, {}
         self._patch_ops = None
         self._compat = None
         self._calls = 0
@@ -413,10 +411,12 @@ class PatchSolver:
                         form = LinearForm(self.Y)
                         form += lf_of_hat(hat)
                         b[f, i] += self._layout(form.Assemble().vec.FV().NumPy())
+        masses = {}  # one shaped mass per (shape, bonus) of this call: the fields share the shape of lam^
         for f, terms in enumerate(vertex or []):
             for values, bonus, shape in terms or []:
-                M = self.vertex_mass(bonus) if shape is None else self.shaped_mass(shape, bonus)
-                b[f, :, :, nV:] -= np.asarray(values, float).T[:, :, None] * M
+                if (id(shape), bonus) not in masses:  # the shapes are alive during the call: their ids are unique
+                    masses[id(shape), bonus] = self.vertex_mass(bonus) if shape is None else self.shaped_mass(shape, bonus)
+                b[f, :, :, nV:] -= np.asarray(values, float).T[:, :, None] * masses[id(shape), bonus]
         # interior patches: the constant source making the patch data compatible (module doc)
         tested = (b[:, :, :, nV:] * self.one_Q[None, None]).sum(axis=3)   # w-rhs tested with w = 1
         P, Pt, scale = self._compatibility()
