@@ -183,3 +183,28 @@ def test_patch_solver_constant_one_is_the_projection_of_one(scene, p, level):
     assert np.abs(S.one_Q - expect).max() <= 1e-12
     assert np.allclose((S.one_Q * S.mass_Q).sum(axis=1), Integrate(CoefficientFunction(1.0) * dx, disc.mesh, element_wise=True).NumPy(),
                        rtol=1e-12, atol=0.0)
+
+
+@pytest.mark.parametrize("scene,p,level", [("lshape", 3, 0), ("disk", 2, 0)])
+def test_hat_moments_equal_the_three_hat_weighted_assemblies(scene, p, level):
+    """(g psi_i, w_j)_K from one assembly of (g, v_m) on P_{q+1} and the reference products psi_i w_j = sum T v_m
+    equal the three assemblies with the hats: a g with a kink and a fixed rule, on the straight L-shape (P3) and the
+    curved disk (P2), elements of every ranking class."""
+    from ngsolve import TRIG, IfPos, IntegrationRule, LinearForm, x, y
+
+    from ngcontact.drivers.adaptive import refine
+
+    problem = load_scene(scene).problem
+    mesh = problem.domain.mesh(level)
+    for _ in range(2):  # bisections: elements of all six ranking classes
+        mesh = refine(mesh, np.arange(0, mesh.ne, 3))
+    disc = FEMDiscretization(problem, mesh, order=p)
+    S = patch_solver(DiscretizationView.of(disc), p)
+    assert len(np.unique(S.ranking)) == 6
+    rule = dx(intrules={TRIG: IntegrationRule(TRIG, 2 * p + 5)})
+    g = IfPos(x - 0.1 * y - 0.05, 1.0 + x * y, -2.0 + y * y)
+    got = S.hat_moments(lambda v: g * v * rule)
+    w = S.X.components[1].TestFunction()
+    for i, hat in enumerate(S.hats):
+        ref = LinearForm(hat * g * w * rule).Assemble().vec.FV().NumPy().reshape(disc.mesh.ne, -1)
+        assert np.abs(got[i] - ref).max() <= 1e-13 * np.abs(ref).max()

@@ -312,8 +312,7 @@ def equilibrate_all(mesh, q: int, data, *, regularization: float = 1e-12, solver
         lfs = [_patch_rhs(solver.Y, d, flux_part=lin is None, with_load=False) for d, lin in zip(data, linear)]
         linear = [([] if lin is None else [lin]) + _mass_operators(solver, d) for d, lin in zip(data, linear)]
         vertex = [_vertex_terms(d) for d in data]
-        w = solver.Y.TestFunction()[1]
-        fixed = [None if d.load is None else (d.load[0], lambda hat, src=d.load[1]: _times(hat, src(w))) for d in data]
+        fixed = [d.load for d in data]  # (owner, source): assembled once per owner (PatchSolver.fixed_vectors)
         coefs = solver.solve([None if lf is None else (lambda hat, lf=lf: _times(hat, lf)) for lf in lfs], linear,
                              vertex, fixed)
         for d, c in zip(data, coefs):

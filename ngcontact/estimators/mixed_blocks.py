@@ -45,7 +45,8 @@ from ngsolve import (H1, HDiv, L2, BilinearForm, CoefficientFunction, ElementId,
 from ..discretizations.p1 import p1_tables
 
 __all__ = ["AffineTriangles", "ElementBlocks", "shapes", "mixed_element_blocks", "flux_operators",
-           "ElementFluxOperator", "reference_blocks", "RANKINGS"]
+           "ElementFluxOperator", "reference_blocks", "reference_hat_products", "ranking_classes",
+           "RANKINGS"]
 
 #: rankings of the global numbers of a triangle's local vertices 0, 1, 2 (rank 0: the smallest number)
 RANKINGS = tuple(itertools.permutations(range(3)))
@@ -131,6 +132,25 @@ def reference_flux_blocks(q: int, p: int):
     return _cache[key]
 
 
+def reference_hat_products(q: int) -> np.ndarray:
+    """T (6, 3, nQ, nP): per ranking, psi_i w_j = sum_m T[c, i, j, m] v_m on the reference triangle, for the hat psi_i
+    of local vertex i, the P_q basis w (L2 order q) and the P_{q+1} basis v (L2 order q + 1): exact, the products
+    lie in P_{q+1}, so (g psi_i, w_j)_K = sum_m T[c, i, j, m] (g, v_m)_K for every g, every rule and every element of
+    ranking c, straight or curved (the bases are those of the reference element).  Computed once per q."""
+    key = ("hat_products", int(q))
+    if key not in _cache:
+        Ts = []
+        for ranking in RANKINGS:
+            mesh = _one_triangle(ranking)
+            Q, P = L2(mesh, order=int(q)), L2(mesh, order=int(q) + 1)
+            v, w = P.TrialFunction(), Q.TestFunction()
+            M = _element_matrix(P, P, v * P.TestFunction() * dx(bonus_intorder=2))
+            B = [_element_matrix(P, Q, hat * v * w * dx(bonus_intorder=2)) for hat in (1.0 - x - y, x, y)]
+            Ts.append(np.array([np.linalg.solve(M, b.T).T for b in B]))  # (psi_i w_j, v_n) = sum_m T_jm M_mn
+        _cache[key] = np.array(Ts)
+    return _cache[key]
+
+
 #: gradients of the reference hats (rows: local vertices 0, 1, 2)
 _HAT_GRADS = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
 
@@ -157,15 +177,20 @@ class AffineTriangles:
         det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
         if not np.all(det > 0):
             return None
-        rank = np.argsort(np.argsort(ev, axis=1, kind="stable"), axis=1)
-        lookup = np.full(27, -1, dtype=np.int64)
-        for c, r in enumerate(RANKINGS):
-            lookup[r[0] * 9 + r[1] * 3 + r[2]] = c
-        return cls(B=B, det=det, cls=lookup[rank[:, 0] * 9 + rank[:, 1] * 3 + rank[:, 2]], vertices=ev)
+        return cls(B=B, det=det, cls=ranking_classes(ev), vertices=ev)
 
     def classes(self):
         """(class index, its elements) for the classes present."""
         return _class_groups(self.cls)
+
+
+def ranking_classes(ev: np.ndarray) -> np.ndarray:
+    """(ne,) index into :data:`RANKINGS` of the ranking of every element's vertex numbers ``ev`` (ne, 3, local order)."""
+    rank = np.argsort(np.argsort(ev, axis=1, kind="stable"), axis=1)
+    lookup = np.full(27, -1, dtype=np.int64)
+    for c, r in enumerate(RANKINGS):
+        lookup[r[0] * 9 + r[1] * 3 + r[2]] = c
+    return lookup[rank[:, 0] * 9 + rank[:, 1] * 3 + rank[:, 2]]
 
 
 def _class_groups(cls: np.ndarray):
@@ -177,7 +202,11 @@ def _class_groups(cls: np.ndarray):
 
 
 def _element_dofs(space, ne: int) -> np.ndarray:
-    return np.array([space.GetDofNrs(ElementId(VOL, e)) for e in range(ne)], dtype=np.int64).reshape(ne, -1)
+    """(ne, n): the dof numbers of every element (the same number n on each), by one pass over the elements."""
+    dofs = np.empty((ne, len(space.GetDofNrs(ElementId(VOL, 0))) if ne else 0), dtype=np.int64)
+    for el in space.Elements(VOL):
+        dofs[el.nr] = el.dofs
+    return dofs
 
 
 @dataclass(frozen=True, eq=False)

@@ -59,12 +59,13 @@ factorized with eps = 0 (the divergence of broken RT_q onto P_q(K) makes them in
 from __future__ import annotations
 
 import numpy as np
-from ngsolve import (H1, VOL, BilinearForm, CoefficientFunction, Discontinuous, ElementId, GridFunction,
+from ngsolve import (H1, L2, VOL, BilinearForm, CoefficientFunction, Discontinuous, ElementId, GridFunction,
                      LinearForm, TaskManager, dx)
 
 from ..discretizations.base import bit_mask
-from .mixed_blocks import ElementBlocks
+from .mixed_blocks import ElementBlocks, ranking_classes
 from .opposite_edges import OppositeEdges
+from .patch_operators import patch_operators
 
 __all__ = ["PatchSolver", "local_hats"]
 
@@ -220,7 +221,8 @@ class PatchSolver:
             self.groups.append(dict(pairs=pairs, loc=loc, fixed=fixed, interior=interior, m=m,
                                     z=z_glob[gdof] * interior[:, None], area=area[self.pair_K[pairs]].sum(axis=1)))
         self.A_II_inv = A_II_inv  # without shapes: formed with the patch inverses
-        self._ops, self._fixed, self._inv_cache = {}, {}, {}
+        self._ops, self._fixed, self._inv_cache, self._P = {}, {}, {}, None  # _P: P_{q+1} of hat_moments
+        self.ranking = ranking_classes(ev)  # of the P_q bases (.mixed_blocks.RANKINGS)
         self._patch_ops = None
         self._compat = None
         self._calls = 0
@@ -288,18 +290,41 @@ class PatchSolver:
 
     def shaped_mass(self, shape, bonus: int = 0) -> np.ndarray:
         """M[i, K, j] = (psi_i shape, w_j)_K (shape None: 1; not kept: the shape changes with the iterate);
-        a shape with kinks (lam_h^+) is integrated by the fixed rule of :meth:`shaped_rule_order`."""
+        a shape with kinks (lam_h^+) is integrated by the fixed rule of :meth:`shaped_rule_order`
+        (:meth:`hat_moments`), the shape 1 by the default rule + ``bonus`` of P_q, three assemblies."""
         from ngsolve import TRIG, IntegrationRule
 
+        if shape is not None:
+            rule = dx(intrules={TRIG: IntegrationRule(TRIG, self.shaped_rule_order(bonus))})
+            return self.hat_moments(lambda v: shape * v * rule)
         w = self.X.components[1].TestFunction()
         M = np.empty((3, self.mesh.ne, self.nQ))
-        meas = dx(bonus_intorder=int(bonus)) if shape is None else \
-            dx(intrules={TRIG: IntegrationRule(TRIG, self.shaped_rule_order(bonus))})
         with TaskManager():
             for i, hat in enumerate(self.hats):
-                cf = hat if shape is None else hat * shape
-                M[i] = LinearForm(cf * w * meas).Assemble().vec.FV().NumPy().reshape(self.mesh.ne, self.nQ)
+                M[i] = LinearForm(hat * w * dx(bonus_intorder=int(bonus))).Assemble().vec.FV().NumPy().reshape(
+                    self.mesh.ne, self.nQ)
         return M
+
+    def hat_moments(self, source) -> np.ndarray:
+        """(3, ne, nQ): (g psi_i, w_j)_K for a linear form ``source(v)`` = (g, v) (v a plain factor of its integrands,
+        each with a rule fixed by its measure, not by the space): (g, v_m)_K is assembled ONCE on P_{q+1} and
+        multiplied by the reference products psi_i w_j = sum_m T_jm v_m (:func:`.mixed_blocks.reference_hat_products`,
+        one per ranking class of the elements): the same sums over the same points as three hat-weighted assemblies."""
+        from .mixed_blocks import reference_hat_products
+
+        q = int(self.X.components[1].globalorder)
+        if self._P is None:
+            self._P = L2(self.mesh, order=q + 1)
+        form = LinearForm(self._P)
+        form += source(self._P.TestFunction())
+        with TaskManager():
+            g = form.Assemble().vec.FV().NumPy().reshape(self.mesh.ne, -1)
+        T = reference_hat_products(q)                                           # (6, 3, nQ, nP)
+        out = np.empty((3, self.mesh.ne, self.nQ))
+        for c in np.unique(self.ranking):
+            sel = np.flatnonzero(self.ranking == c)
+            out[:, sel] = np.einsum("ijm,km->ikj", T[c], g[sel])
+        return out
 
     def _patch_solve(self, gi, G, sl, rhs):
         """Solutions of the patch systems of the chunk ``sl`` of group ``gi`` for ``rhs`` (np, m, nf): by the
@@ -345,19 +370,13 @@ class PatchSolver:
         return np.concatenate([vec[:self.offQ].reshape(ne, self.nV), vec[self.offQ:self.offF].reshape(ne, self.nQ)],
                               axis=1)
 
-    def fixed_vectors(self, owner, lf_of_hat) -> np.ndarray:
-        """(3, ne, nI): the assembled ``lf_of_hat(hat_i)`` in the layout of :meth:`_layout`, kept while ``owner``
-        (the data the form is built of, e.g. a load CoefficientFunction) is the same object; the last
-        :attr:`FIXED_KEPT` owners are kept."""
+    def fixed_vectors(self, owner, source) -> np.ndarray:
+        """(3, ne, nQ): :meth:`hat_moments` of ``source``, kept while ``owner`` (the data the form is built of, e.g. a
+        load CoefficientFunction) is the same object; the last :attr:`FIXED_KEPT` owners are kept."""
         hit = self._fixed.get(id(owner))
         if hit is not None and hit[0] is owner:
             return hit[1]
-        vecs = np.empty((3, self.mesh.ne, self.nI))
-        with TaskManager():
-            for i, hat in enumerate(self.hats):
-                form = LinearForm(self.Y)
-                form += lf_of_hat(hat)
-                vecs[i] = self._layout(form.Assemble().vec.FV().NumPy())
+        vecs = self.hat_moments(source)
         if len(self._fixed) >= self.FIXED_KEPT:
             self._fixed.pop(next(iter(self._fixed)))
         self._fixed[id(owner)] = (owner, vecs)  # the owner is referenced: its id stays unique
@@ -385,8 +404,8 @@ class PatchSolver:
             with :meth:`vertex_mass` of that ``bonus``), or g_a|_K = values[K, i] shape if ``shape``
             (a CoefficientFunction) is not None (:meth:`shaped_mass`).
         fixed : list of (tuple or None), optional
-            per field, a further right-hand side part ``(owner, lf_of_hat)`` assembled once per owner
-            (:meth:`fixed_vectors`; the iterate-independent data such as the load f).
+            per field, a further right-hand side part ``(owner, source)``, source(v) = (g, v) for a test function v
+            (:meth:`hat_moments`), assembled once per owner (:meth:`fixed_vectors`; the load f).
 
         Returns
         -------
@@ -402,8 +421,8 @@ class PatchSolver:
         with TaskManager():
             for f, (lf_of_hat, lin, fix) in enumerate(zip(lfs, linear, fixed)):
                 lins = [] if lin is None else (lin if isinstance(lin, list) else [lin])
-                if fix is not None:  # kept in the layout of b
-                    b[f] = self.fixed_vectors(*fix)
+                if fix is not None:  # P_q rows only
+                    b[f, :, :, nV:] = self.fixed_vectors(*fix)
                 for part in lins:  # the three hats' operators in one matrix, rows in the layout of b
                     b[f] += part[4] * (self.operators(*part[:3], *part[5:6]) @ part[3]).reshape(3, ne, nI)
                 if lf_of_hat is not None:
@@ -427,10 +446,10 @@ class PatchSolver:
         blocks = self.blocks
         g = -blocks.apply(self.W_t, b.reshape(nf * 3, ne, nI).transpose(1, 2, 0)).transpose(2, 0, 1).reshape(
             nf, 3, ne, nF3)
-        ops = self._patch_operators()
+        ops = patch_operators(self)
         if ops is None and self._keep_inverses and self._calls >= self._inverse_from:
             self._form_inverses()
-            ops = self._patch_operators()
+            ops = patch_operators(self)
         if ops is not None:  # every patch inverse is kept: the whole map g -> msum as four sparse products
             E_in, S_inv, G_out, R = ops
             # one right-hand side at a time: scipy's product with several vectors is slower than as many
@@ -492,59 +511,3 @@ class PatchSolver:
                 vals = np.take_along_axis(sol[:, None, :, :], loc[:, :, :, None], axis=2)  # (np, n, nE, nf)
                 mE[:, i, K] = np.moveaxis(vals, 3, 0)   # every (i, K) pair lies in one patch
         return mE
-
-    def _patch_operators(self):
-        """(E_in, S_inv, G_out, R) once every patch inverse is kept (else None): the map from the condensed
-        right-hand sides g (3 ne nF3, hat-major) to msum (ne nF3) of :meth:`solve`,
-        msum = G_out S_inv E_in g + R g, the same as the elimination of :mod:`.opposite_edges`, :meth:`_patch_loop`
-        and its ``facet_sums``.  E (built here as CSR arrays directly: every (hat, element, dof at the vertex) is
-        one patch unknown, so E has at most one entry per column) scatters the right-hand sides of the patch
-        unknowns (3 ne nE) into the stacked patch unknowns (not into the fixed ones: their right-hand side is
-        zero), S_inv is block diagonal with the patch inverses (m per row of a patch of m unknowns; canonical
-        CSR), U picks the patch unknown of every (hat, element, dof at the vertex); with the per-pair blocks of
-        the elimination (T_E, T_O: the columns at / opposite to the vertex, C = S_EO S_OO^-1, and P_E, P_O
-        summing onto the facet dofs of the elements): E_in = E (T_E - C T_O),
-        G_out = (P_E - P_O S_OO^-1 S_OE) U, R = P_O S_OO^-1 T_O."""
-        from scipy.sparse import csc_matrix, csr_matrix
-
-        if self._patch_ops is not None:
-            return self._patch_ops
-        keys = [(gi, c0) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
-        if not self._keep_inverses or any(k not in self._inv_cache for k in keys):
-            return None
-        ne, nE = self.mesh.ne, self.nE
-        n_in = 3 * ne * nE
-        chunks = [(gi, c0, G) for gi, G in enumerate(self.groups) for c0 in range(0, len(G["pairs"]), self.CHUNK)]
-        sizes = [len(G["pairs"][c0:c0 + self.CHUNK]) * G["m"] for _, c0, G in chunks]
-        base, nnz = int(sum(sizes)), int(sum(n * G["m"] for n, (_, _, G) in zip(sizes, chunks)))
-        itype = np.int32 if max(base, nnz, n_in) < np.iinfo(np.int32).max else np.int64
-        unknown = np.full(n_in, -1, dtype=itype)  # patch unknown of (hat i, element K, dof e at the vertex)
-        free = np.zeros(n_in, dtype=bool)
-        data, cols = np.empty(nnz), np.empty(nnz, dtype=itype)  # S_inv, filled chunk by chunk
-        indptr = np.empty(base + 1, dtype=itype)
-        indptr[0] = 0
-        start = at = 0
-        for (gi, c0, G), size in zip(chunks, sizes):
-            m, sl = G["m"], slice(c0, c0 + self.CHUNK)
-            pairs, loc = G["pairs"][sl], G["loc"][sl]                              # (np, n), (np, n, nE)
-            npch = len(pairs)
-            K, i = self.pair_K[pairs], self.pair_i[pairs]
-            col = ((i[:, :, None] * ne + K[:, :, None]) * nE + np.arange(nE)).ravel()
-            unknown[col] = (start + np.arange(npch)[:, None, None] * m + loc).ravel()
-            free[col] = ~np.take_along_axis(G["fixed"][sl], loc.reshape(npch, -1), axis=1).ravel()
-            # row j of patch p: row j of its inverse at the patch's columns
-            data[at:at + size * m] = self._inv_cache[(gi, c0)].ravel()
-            cols[at:at + size * m].reshape(npch, m, m)[...] = (start + np.arange(npch)[:, None, None] * m
-                                                                + np.arange(m)[None, None, :])
-            indptr[start + 1:start + size + 1] = at + m * np.arange(1, size + 1)
-            start, at = start + size, at + size * m
-        if unknown.min() < 0:  # pragma: no cover - every (hat, element) pair lies in one patch
-            raise RuntimeError("a (hat, element) pair outside the vertex patches")
-        # E: column (i, K, e) -> its patch unknown, if that one is free
-        E = csc_matrix((np.ones(int(free.sum())), unknown[free], np.concatenate([[0], np.cumsum(free)]).astype(itype)),
-                       shape=(base, n_in)).tocsr()
-        S_inv = csr_matrix((data, cols, indptr), shape=(base, base))
-        U = csr_matrix((np.ones(n_in), unknown, np.arange(n_in + 1, dtype=itype)), shape=(n_in, base))
-        E_in, G_out, R = self.elim.fold(E, U)
-        self._patch_ops = (E_in, S_inv, G_out, R)
-        return self._patch_ops
