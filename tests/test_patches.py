@@ -208,3 +208,23 @@ def test_hat_moments_equal_the_three_hat_weighted_assemblies(scene, p, level):
     for i, hat in enumerate(S.hats):
         ref = LinearForm(hat * g * w * rule).Assemble().vec.FV().NumPy().reshape(disc.mesh.ne, -1)
         assert np.abs(got[i] - ref).max() <= 1e-13 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("q", [1, 2, 3, 4])
+def test_facet_constant_one_is_the_dual_set_of_one(q):
+    """The facet vector of the constant 1 (the null mode of the interior patches) from the facet dofs of the elements
+    in their local order equals NGSolve's Set(1, dual=True), with and without Dirichlet facets, on a bisected mesh."""
+    from ngsolve import GridFunction
+
+    from ngcontact.drivers.adaptive import refine
+    from ngcontact.estimators.mixed_blocks import AffineTriangles, _spaces, mixed_element_blocks
+    from ngcontact.estimators.patches import facet_constant_one
+
+    mesh = load_scene("lshape").problem.domain.mesh(0)
+    mesh = refine(mesh, np.arange(0, mesh.ne, 2))
+    V, Q, F, X = _spaces(mesh, q)
+    fdofs = mixed_element_blocks(AffineTriangles.of(mesh), X, q).fdofs - V.ndof - Q.ndof
+    ref = GridFunction(F)
+    ref.Set(CoefficientFunction(1.0), dual=True)
+    assert np.abs(facet_constant_one(F, fdofs) - ref.vec.FV().NumPy()).max() <= 1e-12
+    assert np.array_equal(facet_constant_one(F), np.round(ref.vec.FV().NumPy(), 12))

@@ -67,7 +67,7 @@ from .mixed_blocks import ElementBlocks, ranking_classes
 from .opposite_edges import OppositeEdges
 from .patch_operators import patch_operators
 
-__all__ = ["PatchSolver", "local_hats"]
+__all__ = ["PatchSolver", "local_hats", "facet_constant_one"]
 
 
 def local_hats(mesh) -> list:
@@ -82,6 +82,19 @@ def local_hats(mesh) -> list:
         g.vec.FV().NumPy()[:] = vals.ravel()
         hats.append(g)
     return hats
+
+
+def facet_constant_one(F, fdofs=None) -> np.ndarray:
+    """The coefficients of the constant 1 in the facet space F.  ``fdofs`` (ne, 3 (q + 1)): the facet dofs of every
+    element in its local order, edge by edge, as FacetFESpace numbers them, q + 1 per edge, the constant first
+    (checked against Set(1, dual=True) in tests/test_patches.py); None: Set(1, dual=True), a facet-mass solve."""
+    if fdofs is not None:
+        z = np.zeros(F.ndof)
+        z[fdofs[:, ::int(F.globalorder) + 1].ravel()] = 1.0
+        return z
+    zf = GridFunction(F)
+    zf.Set(CoefficientFunction(1.0), dual=True)
+    return np.round(zf.vec.FV().NumPy(), 12)
 
 
 def _scatter_add(shape, flat_index, values) -> np.ndarray:
@@ -148,9 +161,6 @@ class PatchSolver:
         self.affine = affine  # .mixed_blocks.AffineTriangles of the mesh, or None
         V, Q, F = X.components
         self.Y = V * Q  # right-hand sides: the facet rows are zero
-        zf = GridFunction(F)
-        zf.Set(CoefficientFunction(1.0), dual=True)                # facet vector of the constant 1
-        z_glob = np.concatenate([np.zeros(V.ndof + Q.ndof), np.round(zf.vec.FV().NumPy(), 12)])
         w_ = Q.TestFunction()
         with TaskManager():
             moments = LinearForm(w_ * dx).Assemble().vec                    # (1, w_j)_K
@@ -169,6 +179,8 @@ class PatchSolver:
         A_II, A_VF, fdofs = blocks.A_II, blocks.A_VF, blocks.fdofs
         nF3, ns = fdofs.shape[1], blocks.nshapes
         self.blocks = blocks
+        z_glob = np.zeros(X.ndof)
+        z_glob[offF:] = facet_constant_one(F, fdofs - offF if local_order else None)
         # per element shape (one per element without shared shapes): W = A_II^{-1} A_IF, S_K = -A_FI W.  With shapes
         # shared by elements, A_II^{-1} per shape is formed here once: W from it, and its RT rows kept for solve()
         if blocks.shape is not None:
