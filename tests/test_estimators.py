@@ -250,6 +250,25 @@ def test_gap_terms_are_integrated_on_the_negative_support_only(solved_scene):
     assert np.array_equal(nc.values(qa, qa.values(gap)), qa.values(nc.n))
 
 
+@pytest.mark.parametrize("maxit", [4, 30])
+def test_gap_values_only_where_the_multiplier_is_not_zero(solved_scene, monkeypatch, maxit):
+    """The concentrated contact terms evaluate the gap only on the elements where lam^ is not 0 at a point of the
+    rule (bound.gap_elements): the estimate is the same as with the gap evaluated everywhere, to rounding (P2, the
+    4th Newton iterate, where lam^ and the gap overlap, and the converged solution)."""
+    import ngcontact.estimators.bound as bound
+
+    scene, disc, sol = solved_scene("disk", 1, 2, maxit=maxit)
+    est = estimate(disc, sol.x, sol.y)
+    assert 0 < bound.gap_elements(np.ones((3, 2))).sum()
+    monkeypatch.setattr(bound, "gap_elements", lambda lam_values: np.ones(len(lam_values), dtype=bool))
+    DiscretizationView.of(disc).cache.clear()
+    every = estimate(disc, sol.x, sol.y)
+    # the same numbers up to the rounding of NGSolve's vectorized evaluation, which depends on the batch of points
+    for name in ("eta", "eta_FR", "eta_nonc2", "eta_nonc3", "eta_direct"):
+        assert abs(getattr(est, name) - getattr(every, name)) <= 1e-13 * est.eta, name
+    assert np.abs(est.eta_C - every.eta_C).max() <= 1e-13 * np.abs(every.eta_C).sum()
+
+
 @pytest.mark.slow
 def test_estimation_time_vs_newton_at_1e5_dofs():
     """Benchmark (issue 4): estimation <= 2 x Newton solve time, disk P1 level 4 (103491 dofs).

@@ -315,6 +315,13 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
     return est
 
 
+def gap_elements(lam_values: np.ndarray) -> np.ndarray:
+    """The elements whose gap values the contact terms need (mask): those where lam^ is not 0 at a point of the
+    rule.  The gap enters only through products with lam~, and lam~ is 0 where lam^ is (every candidate of
+    :func:`.nonnegative.concentrated_multiplier` is 0 on an element with lam^ = 0 at its points)."""
+    return (lam_values != 0.0).any(axis=1)
+
+
 def _candidates(dv: DiscretizationView, q: int) -> Optional[Tuple[str, str]]:
     """The two multipliers of the default estimate (module doc, "Multiplier"), or None for one."""
     if dv.order < 2:
@@ -356,12 +363,16 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         lam_t, nonc2, loc_K = nonnegative_part(ig, lam, flux.lam_order, eta_FR)
         if opts.concentrates(p):
             # lam~ moved towards the small gaps inside every element (:func:`concentrated_multiplier`)
-            if "qa" not in shared:
+            if "qa" not in shared:  # the values of the gap and of n, filled element by element as needed
                 qa = ig.quadrature(2 * p + 6)
-                gap_v = qa.values(gap)
-                shared["qa"] = qa, gap_v, shared["nc"].values(qa, gap_v)
-            qa, gap_v, corr_v = shared["qa"]
+                shared["qa"] = qa, np.zeros(qa.W.shape), np.zeros(qa.W.shape), np.zeros(len(qa.W), dtype=bool)
+            qa, gap_v, corr_v, known = shared["qa"]
             lam_v = qa.values(lam_t)
+            need = np.flatnonzero(gap_elements(lam_v) & ~known)
+            if len(need):
+                gap_v[need] = qa.values(gap, need)
+                corr_v[need] = shared["nc"].values(qa, gap_v[need], need)
+                known[need] = True
             lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + corr_v, ig.h, ig.C_mu,
                                                   eta_FR + eta_quad + nonc2 + 2.0 * nonc1)
             nonc2 += ig.C_mu * math.sqrt(float(loc2.sum()))

@@ -82,10 +82,15 @@ class QuadratureArrays:
         xi, et = self.ref[:, 0], self.ref[:, 1]
         self.bary = np.stack([xi, et, 1.0 - xi - et])  # (3, nq)
 
-    def values(self, cf) -> np.ndarray:
+    def values(self, cf, elements=None) -> np.ndarray:
+        """Values of ``cf`` at the points of every element (ne, nq), or of the elements of the index array
+        ``elements`` (len(elements), nq); None: zeros."""
+        if elements is None:
+            return np.zeros_like(self.W) if cf is None else np.asarray(cf(self.mips)).reshape(self.W.shape)
         if cf is None:
-            return np.zeros_like(self.W)
-        return np.asarray(cf(self.mips)).reshape(self.W.shape)
+            return np.zeros((len(elements), self.W.shape[1]))
+        mips = self.mips.reshape(self.W.shape)[np.asarray(elements, dtype=np.int64)].ravel()
+        return np.asarray(cf(mips)).reshape(len(elements), self.W.shape[1])
 
     def integrate(self, vals) -> np.ndarray:
         return (self.W * vals).sum(axis=1)

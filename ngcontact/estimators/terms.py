@@ -330,10 +330,11 @@ class Nonconformity:
     pointwise: bool = False
     support: Optional[np.ndarray] = None
 
-    def values(self, qa: QuadratureArrays, gap_values: np.ndarray) -> np.ndarray:
-        """n at the points of ``qa``, given the gap's values there: max(-gap, 0) when n is the pointwise
-        negative part (the same numbers as evaluating n, one evaluation less), else evaluated."""
-        return np.maximum(-gap_values, 0.0) if self.pointwise else qa.values(self.n)
+    def values(self, qa: QuadratureArrays, gap_values: np.ndarray, elements=None) -> np.ndarray:
+        """n at the points of ``qa`` (of the elements of the index array ``elements``, None: all), given the gap's
+        values there: max(-gap, 0) when n is the pointwise negative part (the same numbers as evaluating n, one
+        evaluation less), else evaluated."""
+        return np.maximum(-gap_values, 0.0) if self.pointwise else qa.values(self.n, elements)
 
 
 def nonconformity(sv: SolutionView, ig: Integrals, gap, ggap, exact_bc: bool) -> Nonconformity:
