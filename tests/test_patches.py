@@ -181,8 +181,8 @@ def test_patch_solver_constant_one_is_the_projection_of_one(scene, p, level):
     ref.Set(1.0)
     expect = ref.vec.FV().NumPy().reshape(S.one_Q.shape)
     assert np.abs(S.one_Q - expect).max() <= 1e-12
-    assert np.allclose((S.one_Q * S.mass_Q).sum(axis=1), Integrate(CoefficientFunction(1.0) * dx, disc.mesh, element_wise=True).NumPy(),
-                       rtol=1e-12, atol=0.0)
+    areas = Integrate(CoefficientFunction(1.0) * dx, disc.mesh, element_wise=True).NumPy()
+    assert np.allclose((S.one_Q * S.mass_Q).sum(axis=1), areas, rtol=1e-12, atol=0.0)
 
 
 @pytest.mark.parametrize("scene,p,level", [("lshape", 3, 0), ("disk", 2, 0)])

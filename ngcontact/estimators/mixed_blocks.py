@@ -185,7 +185,8 @@ class AffineTriangles:
 
 
 def ranking_classes(ev: np.ndarray) -> np.ndarray:
-    """(ne,) index into :data:`RANKINGS` of the ranking of every element's vertex numbers ``ev`` (ne, 3, local order)."""
+    """(ne,) index into :data:`RANKINGS` of the ranking of the vertex numbers ``ev`` (ne, 3, local order) of every
+    element."""
     rank = np.argsort(np.argsort(ev, axis=1, kind="stable"), axis=1)
     lookup = np.full(27, -1, dtype=np.int64)
     for c, r in enumerate(RANKINGS):

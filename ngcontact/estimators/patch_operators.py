@@ -1,4 +1,5 @@
-"""The sparse operators of :meth:`.patches.PatchSolver.solve` once every patch inverse is kept (:func:`patch_operators`)."""
+"""The sparse operators of :meth:`.patches.PatchSolver.solve` once every patch inverse is kept
+(:func:`patch_operators`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,8 +11,8 @@ def patch_operators(solver):
     """(E_in, S_inv, G_out, R) of the :class:`.patches.PatchSolver` ``solver`` once every patch inverse is kept (else
     None; built once, kept in ``solver._patch_ops``): the map from the condensed right-hand sides g (3 ne nF3,
     hat-major) to msum (ne nF3) of its ``solve``, msum = G_out S_inv E_in g + R g, the same as the elimination of
-    :mod:`.opposite_edges`, its ``_patch_loop`` and ``facet_sums``.  E (built here as CSR arrays directly: every (hat, element, dof at the vertex) is
-    one patch unknown, so E has at most one entry per column) scatters the right-hand sides of the patch
+    :mod:`.opposite_edges`, its ``_patch_loop`` and ``facet_sums``.  E (built here as CSR arrays directly: every
+    (hat, element, dof at the vertex) is one patch unknown, so E has at most one entry per column) scatters the right-hand sides of the patch
     unknowns (3 ne nE) into the stacked patch unknowns (not into the fixed ones: their right-hand side is
     zero), S_inv is block diagonal with the patch inverses (m per row of a patch of m unknowns; canonical
     CSR), U picks the patch unknown of every (hat, element, dof at the vertex); with the per-pair blocks of

@@ -35,7 +35,8 @@ on straight triangles applied element by element from reference matrices,
 :func:`.mixed_blocks.flux_operators`, else assembled as sparse matrices), so a new u_h costs one
 product instead of three assemblies with the Hessian and element-boundary terms; likewise the
 FE-mass-rule sources linear in a GridFunction (``PatchData.mass`` of :mod:`.flux`), and the load part of
-the sources is assembled once per load object (:meth:`PatchSolver.fixed_vectors`).
+the sources is assembled once per load object (:meth:`PatchSolver.fixed_vectors`); the hat-weighted load and
+multiplier sources (g psi_i, w)_K of the three hats come from one assembly on P_{q+1} (:meth:`PatchSolver.hat_moments`).
 
 Cost: ``PatchwiseSolve`` (NGSolve 6.2) loops over the vertices on one thread, recomputes the
 element matrices of every patch (three times per element) and inverts the full patch matrix
@@ -446,7 +447,8 @@ class PatchSolver:
         for f, terms in enumerate(vertex or []):
             for values, bonus, shape in terms or []:
                 if (id(shape), bonus) not in masses:  # the shapes are alive during the call: their ids are unique
-                    masses[id(shape), bonus] = self.vertex_mass(bonus) if shape is None else self.shaped_mass(shape, bonus)
+                    masses[id(shape), bonus] = (self.vertex_mass(bonus) if shape is None
+                                                else self.shaped_mass(shape, bonus))
                 b[f, :, :, nV:] -= np.asarray(values, float).T[:, :, None] * masses[id(shape), bonus]
         # interior patches: the constant source making the patch data compatible (module doc)
         tested = (b[:, :, :, nV:] * self.one_Q[None, None]).sum(axis=3)   # w-rhs tested with w = 1

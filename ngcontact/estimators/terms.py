@@ -48,7 +48,8 @@ from .options import EstimatorOptions
 from .view import DiscretizationView, SolutionView
 
 __all__ = ["Integrals", "element_diameters", "friedrichs_constant", "P0Dual", "flux_residual", "flux_rule_order",
-           "mean_term", "defect_norm", "negative_part_squares", "nonnegative_part", "corrected_fields", "split", "Nonconformity", "nonconformity",
+           "mean_term", "defect_norm", "negative_part_squares", "nonnegative_part", "corrected_fields", "split",
+           "Nonconformity", "nonconformity",
            "admissible_correction", "contact_work", "direct_root"]
 
 J01 = 2.404825557695773  # first zero of the Bessel function J0
