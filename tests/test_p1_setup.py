@@ -342,7 +342,7 @@ def test_bit_mask_is_the_bitarray():
     parts, all free, none free, empty)."""
     from ngsolve import H1, BitArray
 
-    from ngcontact.discretizations.base import bit_mask
+    from ngcontact.discretizations.base import bit_array, bit_mask
 
     mesh = load_scene("lshape").problem.domain.mesh(0)
     for bits in (H1(mesh, order=3, dirichlet=".*").FreeDofs(), H1(mesh, order=2, dirichlet="").FreeDofs(),
@@ -351,3 +351,4 @@ def test_bit_mask_is_the_bitarray():
         want = np.array(list(bits), dtype=bool)
         got = bit_mask(bits)
         assert got.dtype == bool and np.array_equal(got, want)
+        assert np.array_equal(np.array(list(bit_array(want)), dtype=bool), want)  # and back

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import LinearForm, TaskManager
 
-__all__ = ["Discretization", "scipy_csr", "bit_mask", "assemble_load", "evaluate_at_points", "coordinate_only"]
+__all__ = ["Discretization", "scipy_csr", "bit_mask", "bit_array", "assemble_load", "evaluate_at_points", "coordinate_only"]
 
 
 class Discretization(ABC):
@@ -147,6 +147,13 @@ def bit_mask(bits) -> np.ndarray:
     out = ones.CreateVector()
     out.data = Projector(bits, True) * ones
     return out.FV().NumPy() != 0.0
+
+
+def bit_array(mask):
+    """NGSolve ``BitArray`` of a boolean numpy mask (the inverse of :func:`bit_mask`; e.g. ``definedonelements``)."""
+    from ngsolve import BitArray
+
+    return BitArray(np.asarray(mask, dtype=bool).tolist())
 
 
 #: node types of a CoefficientFunction tree (its ``str``) whose value at a point depends on the coordinates

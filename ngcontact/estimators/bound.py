@@ -351,10 +351,11 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
             lam_d = sv.gfs["lam"]  # the discrete (dual-basis for p >= 2) multiplier of the seed
             shared["seed"] = C_om * math.sqrt(max(float(negative_part_squares(ig, lam_d).sum()), 0.0))
             nc = nonconformity(sv, ig, gap, ggap, exact_bc=all(w is None for w in ws))
-            shared.update(fields=(vals, grads, gap, ggap), nonc1=(nc.eta, nc.n, nc.grad_n, nc.loc), nc=nc,
+            shared.update(fields=(vals, grads, gap, ggap), nc=nc,
                           theta=contact_work(ig, fields, grads, nc.n, nc.grad_n, nc.support))
         vals, grads, gap, ggap = shared["fields"]
-        nonc1, corr, gcorr, nonc1_K = shared["nonc1"]
+        nc = shared["nc"]
+        nonc1, corr, nonc1_K = nc.eta, nc.n, nc.loc
         nonc2_seed, theta = shared["seed"], shared["theta"]
         eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads, [fd.sign * lam for fd in fields],
                                                        fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)))
@@ -371,7 +372,7 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
             need = np.flatnonzero(gap_elements(lam_v) & ~known)
             if len(need):
                 gap_v[need] = qa.values(gap, need)
-                corr_v[need] = shared["nc"].values(qa, gap_v[need], need)
+                corr_v[need] = nc.values(qa, gap_v[need], need)
                 known[need] = True
             lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + corr_v, ig.h, ig.C_mu,
                                                   eta_FR + eta_quad + nonc2 + 2.0 * nonc1)

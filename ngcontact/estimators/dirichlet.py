@@ -28,10 +28,10 @@ import math
 from typing import Optional
 
 import numpy as np
-from ngsolve import (BND, H1, VOL, BilinearForm, BitArray, CoefficientFunction, ElementId, GridFunction,
+from ngsolve import (BND, H1, VOL, BilinearForm, CoefficientFunction, ElementId, GridFunction,
                      Integrate, LinearForm, dx, grad)
 
-from ..discretizations.base import bit_mask
+from ..discretizations.base import bit_array, bit_mask
 from ..domains import DIRICHLET
 from .view import DiscretizationView
 
@@ -78,10 +78,6 @@ def _element_dofs(space, elements) -> np.ndarray:
     return np.concatenate([np.asarray(r, dtype=np.int64) for r in rows])
 
 
-def _bitarray(mask) -> BitArray:
-    return BitArray(np.asarray(mask, dtype=bool).tolist())
-
-
 def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, layers: Optional[int] = None):
     """Liftings w_h in P_k of the Dirichlet data error, discrete harmonic in a boundary strip (module doc).
 
@@ -122,7 +118,7 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
         return ws, 0.0, 0.0, None
     strip, halo = boundary_strip(dv, strip_layers(dv.order) if layers is None else layers)
     inner = halo.any()
-    on_strip = _bitarray(strip)
+    on_strip = bit_array(strip)
     dxs = dx(definedonelements=on_strip)
     # w_h: discrete harmonic in the strip, zero on its inner boundary (extended by zero)
     free_v = np.zeros(V.ndof, dtype=bool)
@@ -132,7 +128,7 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
         free_v[_element_dofs(V, halo)] = False
     u, v = V.TnT()
     a = BilinearForm(grad(u) * grad(v) * dxs).Assemble()
-    inv = a.mat.Inverse(_bitarray(free_v), inverse="sparsecholesky")
+    inv = a.mat.Inverse(bit_array(free_v), inverse="sparsecholesky")
     # divergence-free rho = curl phi, phi in P_{q+1} on the strip, phi = 0 on its inner boundary (so that
     # rho . n = 0 there and rho extended by zero is in H(div)); no inner boundary: the tiny mass term
     # fixes the constant
@@ -144,7 +140,7 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
     ph, ps = W.TnT()
     curl_ps = CoefficientFunction((grad(ps)[1], -grad(ps)[0]))
     c = BilinearForm(grad(ph) * grad(ps) * dxs + (0.0 if inner else 1e-10) * ph * ps * dxs).Assemble()
-    cinv = c.mat.Inverse(_bitarray(free_w), inverse="sparsecholesky")
+    cinv = c.mat.Inverse(bit_array(free_w), inverse="sparsecholesky")
     bc2 = eps2 = 0.0
     loc = np.zeros(mesh.ne)
     for fd, w in zip(fields, ws):

@@ -38,10 +38,10 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-from ngsolve import (BND, L2, SEGM, TRIG, BilinearForm, BitArray, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
+from ngsolve import (BND, L2, SEGM, TRIG, BilinearForm, CoefficientFunction, FESpace, GridFunction, IfPos, InnerProduct,
                      Integrate, IntegrationRule, LinearForm, VectorL2, div, dx, grad, x, y)
 
-from ..discretizations.base import bit_mask
+from ..discretizations.base import bit_array, bit_mask
 from ..domains import DIRICHLET
 from .nonnegative import QuadratureArrays, nonnegative_multiplier
 from .options import EstimatorOptions
@@ -210,7 +210,7 @@ class Integrals:
 
     def dxq_on(self, elements: np.ndarray):
         """``dxq`` restricted to the elements of the mask ``elements`` (the same rule on each of them)."""
-        return dx(bonus_intorder=self.bonus, definedonelements=BitArray(np.asarray(elements, dtype=bool).tolist()))
+        return dx(bonus_intorder=self.bonus, definedonelements=bit_array(elements))
 
     def negative_support(self, gap) -> np.ndarray:
         """The elements where ``gap`` < 0 at a point of the rule of ``dxq`` (bool mask): elsewhere IfPos(-gap, ., 0),
