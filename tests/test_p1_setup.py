@@ -8,7 +8,7 @@ from ngsolve import H1, BilinearForm, LinearForm, dx, grad
 import ngcontact.discretizations.fem as fem
 import ngcontact.discretizations.p1_levels as p1_levels
 from ngcontact import CrissCrossSquare, StructuredSquare
-from ngcontact.algebra.sparse import submatrix
+from ngcontact.algebra.sparse import abs_row_sums, submatrix
 from ngcontact.discretizations.base import scipy_csr
 from ngcontact.discretizations.lagrange import LagrangeNodes
 from ngcontact.discretizations.p1 import dirichlet_vertices, p1_matrices, p1_tables
@@ -130,6 +130,19 @@ def test_submatrix_is_the_two_step_index(rows, cols):
     assert got.shape == want.shape
     for name in ("indptr", "indices", "data"):
         assert np.array_equal(getattr(got, name), getattr(want, name)), name
+
+
+def test_abs_row_sums_are_those_of_abs_a():
+    """The absolute row sums (infinity norm of pcg's floor, Gershgorin bound of the Chebyshev smoother) equal
+    abs(A).sum(axis=1), on rows of mixed signs and on empty rows (the first, inner ones and the last)."""
+    A = sp.random(40, 30, density=0.15, random_state=3, format="lil")
+    A[[0, 7, 8, 39], :] = 0.0
+    A = A.tocsr()
+    A.data -= 0.5
+    assert np.count_nonzero(np.diff(A.indptr) == 0) >= 4 and (A.data < 0).any()
+    want = np.asarray(abs(A).sum(axis=1)).ravel()
+    assert np.array_equal(abs_row_sums(A), want)
+    assert np.array_equal(abs_row_sums(A.tocsc()), want)
 
 
 def test_submatrix_refuses_bad_selections():

@@ -16,6 +16,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .sparse import abs_row_sums
+
 __all__ = ["SPDSolver", "FixedPatternCholesky", "SOLVERS", "FACTORIZATIONS", "ngsolve_coo", "sparse_solve", "pcg",
            "PCGResult"]
 
@@ -182,7 +184,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
     x = np.zeros_like(b) if x0 is None else np.array(x0, dtype=float)
     if bnorm == 0.0:
         return PCGResult(np.zeros_like(b), 0, True, 0.0)
-    anorm = float(abs(A).sum(axis=1).max()) if A.shape[0] else 0.0
+    anorm = float(abs_row_sums(A).max()) if A.shape[0] else 0.0
     floor = 4 * np.finfo(float).eps * anorm
     tol = rtol * bnorm
     r = b - A @ x

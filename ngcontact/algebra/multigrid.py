@@ -35,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .linalg import SPDSolver
-from .sparse import submatrix
+from .sparse import abs_row_sums, submatrix
 
 __all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "HierarchyCache", "SMOOTHERS", "p1_prolongation",
            "field_prolongation"]
@@ -90,7 +90,7 @@ def _level(A: sp.csr_matrix, P: sp.csr_matrix, chebyshev: bool) -> MultigridLeve
     if not chebyshev:  # Gauss-Seidel needs A only
         return MultigridLevel(A, P)
     dinv = 1.0 / A.diagonal()
-    lmax = float((abs(A) @ np.ones(A.shape[0]) * dinv).max())  # Gershgorin bound of D^-1 A
+    lmax = float((abs_row_sums(A) * dinv).max())  # Gershgorin bound of D^-1 A
     return MultigridLevel(A, P, dinv, lmax)
 
 
