@@ -6,7 +6,7 @@ import pytest
 from ngsolve import GridFunction
 
 from ngcontact.algebra.linalg import SPDSolver, pcg
-from ngcontact.algebra.multigrid import Multigrid
+from ngcontact.algebra.multigrid import Multigrid, _truncated
 from ngcontact.algebra.system import LINEAR_PATHS
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.drivers import RunOptions, run_scene
@@ -56,6 +56,27 @@ def test_p1_prolongation_rows_by_hand():
     ref = np.array([[0, 0.5, 0.5], [1, 0, 0], [0.5, 0.5, 0], [0, 0, 0.5], [0, 0, 0], [0, 0, 1]])
     assert P.shape == ref.shape and np.array_equal(P.toarray(), ref)
     assert P.has_canonical_format and P.nnz == np.count_nonzero(ref)
+
+
+@pytest.mark.parametrize("rows", ["mask", "index"])
+def test_truncated_prolongation_is_the_row_and_column_index(rows):
+    """The truncated prolongation P[rows][:, used] (used: the columns with a nonzero entry in those rows) equals
+    scipy's two-step index, entry for entry, with explicit zeros and empty rows in P."""
+    import scipy.sparse as sp
+
+    P = sp.random(80, 30, density=0.08, random_state=4, format="csr")
+    P.data[::5] = 0.0  # explicit zeros: their columns count as used only through another entry
+    rng = np.random.default_rng(5)
+    mask = rng.random(80) < 0.5
+    got, used = _truncated(P, mask if rows == "mask" else np.flatnonzero(mask))
+    nz = P[np.flatnonzero(mask)]
+    want_used = np.unique(nz.indices[nz.data != 0])
+    assert np.array_equal(used, want_used) and len(used) < np.unique(nz.indices).size
+    want = P[np.flatnonzero(mask)][:, want_used]
+    want.eliminate_zeros()
+    assert got.shape == want.shape
+    for name in ("indptr", "indices", "data"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
 
 
 def _solve(A, b, mg):

@@ -74,16 +74,26 @@ def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_inter
 
 def _truncated(P: sp.csr_matrix, rows) -> "tuple[sp.csr_matrix, np.ndarray]":
     """(P[rows][:, used], used): the rows ``rows`` (boolean mask or increasing indices) of P and its columns with a
-    nonzero entry in them (the coarse unknowns whose truncated function survives), in one pass each
-    (:func:`~ngcontact.algebra.sparse.submatrix`; scipy's column index takes two)."""
+    nonzero entry in them (the coarse unknowns whose truncated function survives).  One pass over P's entries:
+    every entry of a selected row is kept unless it is an explicit zero, so the kept rows' row pointer is the
+    running count of kept entries at the ends of those rows."""
     sel = np.asarray(rows)
     if sel.dtype != bool:
         mask = np.zeros(P.shape[0], dtype=bool)
         mask[sel] = True
         sel = mask
-    entries = np.repeat(sel, np.diff(P.indptr)) & (P.data != 0)
-    used = np.flatnonzero(np.bincount(P.indices[entries], minlength=P.shape[1]))
-    return submatrix(P, sel, used), used
+    entries = np.repeat(sel, np.diff(P.indptr))
+    entries &= P.data != 0
+    cols = P.indices[entries]
+    hit = np.zeros(P.shape[1], dtype=bool)
+    hit[cols] = True
+    used = np.flatnonzero(hit)
+    itype = np.int32 if max(P.nnz, P.shape[1]) < np.iinfo(np.int32).max else np.int64
+    new_col = np.cumsum(hit, dtype=itype) - 1
+    count = np.zeros(len(entries) + 1, dtype=itype)
+    np.cumsum(entries, out=count[1:])
+    indptr = np.concatenate([np.zeros(1, dtype=itype), count[P.indptr[1:]][sel]])
+    return sp.csr_matrix((P.data[entries], new_col[cols], indptr), shape=(int(np.count_nonzero(sel)), len(used))), used
 
 
 def _level(A: sp.csr_matrix, P: sp.csr_matrix, chebyshev: bool) -> MultigridLevel:

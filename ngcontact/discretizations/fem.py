@@ -269,7 +269,6 @@ class FEMDiscretization(Discretization):
     def prolongate(self, previous: "FEMDiscretization", x, y, cfun: str = "min"):
         """Nested iteration: interpolate a coarser level's solution at this level's nodes
         (:meth:`~ngcontact.algebra.system.ComplementaritySystem.warm_start`; ``cfun`` the Newton run's C-function)."""
-        pts = self.nodes.coords[self.interior]
         names = list(self.problem.field_names)
         if self.order == 1 and previous.order == 1:  # nested P1 meshes: no point search needed
             nodal = previous.nodal_fields(x, y)
@@ -277,10 +276,11 @@ class FEMDiscretization(Discretization):
             vals = _parent_p1_values(previous, self, stacked)
             self.__dict__.pop("_parent_cache", None)  # the hierarchy has asked already: not kept with the level
             if vals is None:
-                vals = _nested_p1_values(previous, pts, stacked)
+                vals = _nested_p1_values(previous, self.nodes.coords[self.interior], stacked)
             if vals is not None:
                 return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1], hand_on=cfun == "min")
         gfs = previous.gridfunctions(x, y)
+        pts = self.nodes.coords[self.interior]
         curved = getattr(previous.problem.domain, "curved", False) and previous.order > 1
         bernstein = self.constraints == "bernstein" and self.order > 1
         if bernstein:  # Bernstein coefficients need the values at all domain points
