@@ -217,6 +217,39 @@ def test_algebraic_multigrid_without_a_nested_hierarchy():
 
 
 
+def test_band_solve_by_multigrid_is_the_direct_one(ex9_levels, monkeypatch):
+    """The warm start's band solve with the level's nested hierarchy (CG + truncated multigrid on the band's free
+    rows, relax.BAND_MG_MIN) gives the iterate of the sparse Cholesky solves: x to the CG tolerance, the same
+    next active set and class changes (ex9 level 4 from level 3's solution, part of the contact set let go)."""
+    from ngcontact.algebra import relax
+    from ngcontact.newton import NewtonOptions, semismooth_newton
+
+    coarse, fine = ex9_levels[-2], ex9_levels[-1]
+    scene = load_scene("ex9_obstacle")
+    sc = semismooth_newton(coarse.system, *coarse.initial_guess(scene.initial_guess), NewtonOptions())
+    s = fine.system
+    x0, y0 = fine.prolongate(coarse, sc.x, sc.y)
+    x0 = x0 + 0.5 * np.median(y0[y0 > 0]) / s.constraint_weight
+    R = relax.FreeBoundaryRelaxation(s)
+    sizes = []
+
+    class Counted(relax.SPDSolver):
+        def __init__(self, A, method):
+            sizes.append(A.shape[0])
+            super().__init__(A, method)
+
+    monkeypatch.setattr(relax, "SPDSolver", Counted)
+    direct = R.solve_band(x0, y0, 40, max_steps=2, settle=False)
+    assert len(sizes) == 2 and min(sizes) >= relax.BAND_MG_MIN
+    sizes.clear()
+    mg = R.solve_band(x0, y0, 40, max_steps=2, settle=False, prolongations=fine.mg_prolongations)
+    assert sizes == []  # every band system was solved by multigrid
+    assert mg[2] == direct[2] > 0
+    w = s.constraint_weight
+    assert np.array_equal(w * s.gap(mg[0]) <= mg[1], w * s.gap(direct[0]) <= direct[1])
+    np.testing.assert_allclose(mg[0], direct[0], rtol=0, atol=1e-9 * np.abs(direct[0]).max())
+
+
 def test_early_exit_checks_no_iterate_that_meets_the_target(ex9_levels):
     """The early exit's active-set check (a recover and a gap per call) runs only at iterates still above the
     step's target: CG stops at one that meets it anyway, whatever its active set (here every iterate, nu = 1)."""

@@ -283,7 +283,7 @@ class ComplementaritySystem:
     #: the settled one).  Otherwise up to 8 solves, and the band start only if the active set settles
     WARM_BAND_STEPS = 1
 
-    def warm_start(self, x0: np.ndarray, y0: np.ndarray, hand_on: bool = True):
+    def warm_start(self, x0: np.ndarray, y0: np.ndarray, hand_on: bool = True, prolongations=()):
         """Nested-iteration start (x, y) from an interpolated coarser solution (x0, y0).
 
         Newton-min's first step depends only on the active set {g(x) <= y} of
@@ -311,7 +311,8 @@ class ComplementaritySystem:
         ``hand_on`` (the start of Newton-min) ``WARM_BAND_STEPS`` of them, the active set after the last
         one handed on to the first Newton step; otherwise until the active set settles): the discrete
         free boundary moves by about one layer per Newton-min step, the band solve moves it in one
-        go, and the first Newton step usually keeps its active set.
+        go, and the first Newton step usually keeps its active set.  ``prolongations``: the level's nested
+        multigrid hierarchy, if any (the band's systems are then solved by CG + truncated multigrid).
         """
         x = np.array(x0, dtype=float)
         y = np.array(y0, dtype=float)
@@ -347,7 +348,7 @@ class ComplementaritySystem:
             settle = small or not hand_on
             band = FreeBoundaryRelaxation(self).solve_band(
                 x, y, self.WARM_BAND, max_fraction=1.0 if small else self.WARM_BAND_FRACTION,
-                max_steps=8 if settle else self.WARM_BAND_STEPS, settle=settle)
+                max_steps=8 if settle else self.WARM_BAND_STEPS, settle=settle, prolongations=prolongations)
             if band is not None:
                 x, y = band[0], band[1]
         return x, y

@@ -278,7 +278,8 @@ class FEMDiscretization(Discretization):
             if vals is None:
                 vals = _nested_p1_values(previous, self.nodes.coords[self.interior], stacked)
             if vals is not None:
-                return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1], hand_on=cfun == "min")
+                return self.system.warm_start(np.concatenate(vals[:-1]), vals[-1], hand_on=cfun == "min",
+                                              prolongations=tuple(getattr(self, "mg_prolongations", ())))
         gfs = previous.gridfunctions(x, y)
         pts = self.nodes.coords[self.interior]
         curved = getattr(previous.problem.domain, "curved", False) and previous.order > 1
