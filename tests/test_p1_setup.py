@@ -11,7 +11,7 @@ from ngcontact import CrissCrossSquare, StructuredSquare
 from ngcontact.algebra.sparse import abs_row_sums, submatrix
 from ngcontact.discretizations.base import scipy_csr
 from ngcontact.discretizations.lagrange import LagrangeNodes
-from ngcontact.discretizations.p1 import dirichlet_vertices, p1_matrices, p1_tables
+from ngcontact.discretizations.p1 import dirichlet_vertices, p1_matrices, p1_tables, symmetric_from_upper
 from ngcontact.domains import DIRICHLET, LShape, UnitDisk
 from ngcontact.scenes import load_scene
 
@@ -143,6 +143,26 @@ def test_abs_row_sums_are_those_of_abs_a():
     want = np.asarray(abs(A).sum(axis=1)).ravel()
     assert np.array_equal(abs_row_sums(A), want)
     assert np.array_equal(abs_row_sums(A.tocsc()), want)
+
+
+def test_symmetric_from_upper_is_the_sparse_sum():
+    """S = U + U^T + diag written row by row equals scipy's sums entry for entry (canonical; rows without an
+    upper or a lower part, zero diagonal entries not stored, an empty row)."""
+    U = sp.triu(sp.random(30, 30, density=0.2, random_state=6, format="csr"), 1, format="csr")
+    U = sp.csr_matrix(U.toarray())
+    diag = np.random.default_rng(7).random(30) + 1.0
+    diag[[0, 11, 29]] = 0.0
+    U = U.tolil()
+    U[11, :] = 0.0
+    U[:, 11] = 0.0
+    U = U.tocsr()
+    U.eliminate_zeros()
+    want = U + U.T.tocsr() + sp.diags(diag, format="csr")
+    want.sort_indices()
+    got = symmetric_from_upper(U, diag)
+    assert got.has_canonical_format and np.diff(got.indptr)[11] == 0 and np.diff(U.indptr)[0] > 0
+    for name in ("indptr", "indices", "data"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
 
 
 def test_submatrix_refuses_bad_selections():

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 
-__all__ = ["p1_tables", "p1_matrices", "dirichlet_vertices", "RIGHT_ANGLE"]
+__all__ = ["p1_tables", "p1_matrices", "symmetric_from_upper", "dirichlet_vertices", "RIGHT_ANGLE"]
 
 #: relative size below which a P1 stiffness coupling counts as the zero of a right angle (:func:`p1_matrices`):
 #: rounding leaves a few machine epsilons, a genuine coupling is cot of an angle that differs from 90 degrees
@@ -54,7 +54,7 @@ def p1_matrices(X: np.ndarray, T: np.ndarray, chunk: int = 1 << 19):
 
     One pass over the triangles in chunks of ``chunk``: the diagonal and w are sums per vertex (bincount), the
     couplings are summed once per vertex pair a < b (the upper triangle U: 3 entries per triangle instead of
-    9), and S = U + U^T + diag.
+    9), and S = U + U^T + diag (:func:`symmetric_from_upper`).
 
     S stores the couplings that do not vanish: an off-diagonal entry with |S_ab| <= ``RIGHT_ANGLE`` sqrt(S_aa S_bb)
     is dropped.  Such an entry is the sum of cot(angle) / 2 over the angles opposite to the edge ab; it is zero
@@ -96,9 +96,33 @@ def p1_matrices(X: np.ndarray, T: np.ndarray, chunk: int = 1 << 19):
     r = np.repeat(np.arange(nv, dtype=U.indices.dtype), np.diff(U.indptr))
     U.data[np.abs(U.data) <= RIGHT_ANGLE * d[r] * d[U.indices]] = 0.0
     U.eliminate_zeros()
-    S = U + U.T.tocsr() + sp.diags(diag, format="csr")
-    S.sort_indices()
-    return S, w
+    return symmetric_from_upper(U, diag), w
+
+
+def symmetric_from_upper(U: sp.csr_matrix, diag: np.ndarray) -> sp.csr_matrix:
+    """S = U + U^T + diag(diag) for a strictly upper triangular U with sorted indices, as ``U + U.T + diags``
+    gives it (canonical, zero diagonal entries not stored), written directly: row a of S is row a of U^T
+    (columns < a), the diagonal, row a of U (columns > a); no column occurs twice, so nothing is summed and
+    every entry is placed by its row's offset (two passes over the entries instead of two sparse sums)."""
+    nv = U.shape[0]
+    L = U.T.tocsr()  # the CSC -> CSR conversion appends each row's columns in increasing order
+    itype = U.indices.dtype if 2 * U.nnz + nv < np.iinfo(np.int32).max else np.int64
+    has_d = diag != 0
+    nl, nu = np.diff(L.indptr), np.diff(U.indptr)
+    indptr = np.zeros(nv + 1, dtype=itype)
+    np.cumsum(nl + has_d + nu, out=indptr[1:])
+    data = np.empty(int(indptr[-1]))
+    indices = np.empty(int(indptr[-1]), dtype=itype)
+    start = indptr[:-1]
+    for M, shift, n in ((L, start - L.indptr[:-1], nl), (U, start + nl + has_d - U.indptr[:-1], nu)):
+        pos = np.arange(M.nnz, dtype=itype)
+        pos += np.repeat(shift.astype(itype), n)
+        data[pos] = M.data
+        indices[pos] = M.indices
+    at = (start + nl)[has_d]
+    data[at] = diag[has_d]
+    indices[at] = np.flatnonzero(has_d)
+    return sp.csr_matrix((data, indices, indptr), shape=(nv, nv))
 
 
 def dirichlet_vertices(mesh, region: str, fes=None) -> Optional[np.ndarray]:
