@@ -109,6 +109,22 @@ def test_obstacle_solution_stays_above_obstacle(solve_one):
     assert sol.y.min() >= -1e-12
 
 
+@pytest.mark.parametrize("k", [0, 1])
+def test_parent_table_is_checked_on_both_coordinates(k, monkeypatch):
+    """The parent table of nested P1 levels is used only when the midpoints of every interior node's parents are
+    its coordinates, bitwise: one node moved along coordinate k by a hundredth of h, and it is refused."""
+    import ngcontact.discretizations.fem as fem
+
+    problem = load_scene("ex9_obstacle").problem
+    coarse_mesh, fine_mesh = list(problem.domain.meshes(3))[1:]
+    coarse, fine = FEMDiscretization(problem, coarse_mesh), FEMDiscretization(problem, fine_mesh)
+    assert fem._check_parent_pairs(coarse, fine) is not None
+    moved = fine.nodes.coords.copy()
+    moved[fine.interior[len(fine.interior) // 2], k] += 1e-2 * problem.domain.h(2)
+    monkeypatch.setattr(fine.nodes, "coords", moved)
+    assert fem._check_parent_pairs(coarse, fine) is None
+
+
 @pytest.mark.parametrize("name", ["ex9_obstacle", "test1"])
 def test_nested_p1_prolongation_equals_the_point_search(name, monkeypatch):
     """P1 on uniformly refined straight meshes: the parent table of the structured domains and the

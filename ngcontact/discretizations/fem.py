@@ -402,9 +402,11 @@ def _check_parent_pairs(previous, fine):
             or par.shape != (fine.nvert, 2) or par.max(initial=0) >= previous.nvert:
         return None
     a, b = par[fine.interior, 0], par[fine.interior, 1]
-    P = previous.nodes.coords
-    if not np.array_equal(0.5 * (P[a] + P[b]), fine.nodes.coords[fine.interior]):
-        return None
+    P, Q = previous.nodes.coords, fine.nodes.coords
+    for k in range(P.shape[1]):  # one coordinate at a time: gathers from contiguous vectors, not rows of P
+        Pk = np.ascontiguousarray(P[:, k])
+        if not np.array_equal(0.5 * (Pk[a] + Pk[b]), Q[fine.interior, k]):
+            return None
     return a, b
 
 
