@@ -12,7 +12,7 @@ from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.drivers import RunOptions, run_scene
 from ngcontact.drivers.level import multigrid_hierarchy
 from ngcontact.problems.manufactured import scale_problem
-from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.newton import MultigridSolve, NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
 
 
@@ -216,13 +216,11 @@ def test_algebraic_multigrid_without_a_nested_hierarchy():
         MultigridSolve(smoother="jacobi")
 
 
-
 def test_band_solve_by_multigrid_is_the_direct_one(ex9_levels, monkeypatch):
     """The warm start's band solve with the level's nested hierarchy (CG + truncated multigrid on the band's free
     rows, relax.BAND_MG_MIN) gives the iterate of the sparse Cholesky solves: x to the CG tolerance, the same
     next active set and class changes (ex9 level 4 from level 3's solution, part of the contact set let go)."""
     from ngcontact.algebra import relax
-    from ngcontact.newton import NewtonOptions, semismooth_newton
 
     coarse, fine = ex9_levels[-2], ex9_levels[-1]
     scene = load_scene("ex9_obstacle")
@@ -248,6 +246,32 @@ def test_band_solve_by_multigrid_is_the_direct_one(ex9_levels, monkeypatch):
     w = s.constraint_weight
     assert np.array_equal(w * s.gap(mg[0]) <= mg[1], w * s.gap(direct[0]) <= direct[1])
     np.testing.assert_allclose(mg[0], direct[0], rtol=0, atol=1e-9 * np.abs(direct[0]).max())
+
+
+def test_band_of_any_size_is_solved_with_a_hierarchy(ex9_levels, monkeypatch):
+    """The warm start of a level above WARM_BAND_ALL rows whose band holds more than WARM_BAND_FRACTION of them:
+    skipped when its systems would be factorized, solved with the level's multigrid hierarchy (ex9 level 4,
+    65k unknowns), after which the first multigrid Newton step keeps its active set."""
+    from ngcontact.algebra import relax
+    from ngcontact.algebra.system import ComplementaritySystem
+
+    coarse, fine = ex9_levels[-2], ex9_levels[-1]
+    assert fine.system.n > ComplementaritySystem.WARM_BAND_ALL
+    sc = semismooth_newton(coarse.system, *coarse.initial_guess(load_scene("ex9_obstacle").initial_guess),
+                           NewtonOptions())
+    results = []
+    solve_band = relax.FreeBoundaryRelaxation.solve_band
+    monkeypatch.setattr(relax.FreeBoundaryRelaxation, "solve_band",
+                        lambda self, *a, **k: results.append(solve_band(self, *a, **k)) or results[-1])
+    hierarchy = fine.mg_prolongations
+    fine.mg_prolongations = ()
+    try:
+        fine.prolongate(coarse, sc.x, sc.y)
+    finally:
+        fine.mg_prolongations = hierarchy
+    start = fine.prolongate(coarse, sc.x, sc.y)
+    assert results[0] is None and results[1] is not None and results[1][2] > 0
+    assert semismooth_newton(fine.system, *start, linear=MultigridSolve(prolongations=hierarchy)).iterations == 1
 
 
 def test_early_exit_checks_no_iterate_that_meets_the_target(ex9_levels):

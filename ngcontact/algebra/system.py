@@ -273,8 +273,8 @@ class ComplementaritySystem:
     #: layers of the band around the free boundary on which :meth:`warm_start` solves the obstacle problem
     #: (0: none).  With 40 the nested ex9 levels whose band is solved take one Newton step each
     #: (results/bench/BENCH.md, newton_its).  Above WARM_BAND_ALL rows the band solve is skipped when the band
-    #: holds more than WARM_BAND_FRACTION of them: there its sparse Cholesky factorizations cost about as much as
-    #: the multigrid Newton step they save, or more
+    #: holds more than WARM_BAND_FRACTION of them and its systems are factorized (no multigrid hierarchy): there
+    #: its sparse Cholesky factorizations cost about as much as the multigrid Newton step they save, or more
     WARM_BAND, WARM_BAND_ALL, WARM_BAND_FRACTION = 40, 20000, 0.2
     #: above WARM_BAND_ALL rows: solves of the band iteration; after the last one, its next active set is handed
     #: to the first Newton step (which takes the iteration's next step on the whole system: on the nested ex9
@@ -312,7 +312,8 @@ class ComplementaritySystem:
         one handed on to the first Newton step; otherwise until the active set settles): the discrete
         free boundary moves by about one layer per Newton-min step, the band solve moves it in one
         go, and the first Newton step usually keeps its active set.  ``prolongations``: the level's nested
-        multigrid hierarchy, if any (the band's systems are then solved by CG + truncated multigrid).
+        multigrid hierarchy, if any (the band's systems are then solved by CG + truncated multigrid, and a band
+        of any size is solved).
         """
         x = np.array(x0, dtype=float)
         y = np.array(y0, dtype=float)
@@ -347,7 +348,7 @@ class ComplementaritySystem:
             small = self.m <= self.WARM_BAND_ALL
             settle = small or not hand_on
             band = FreeBoundaryRelaxation(self).solve_band(
-                x, y, self.WARM_BAND, max_fraction=1.0 if small else self.WARM_BAND_FRACTION,
+                x, y, self.WARM_BAND, max_fraction=1.0 if small or prolongations else self.WARM_BAND_FRACTION,
                 max_steps=8 if settle else self.WARM_BAND_STEPS, settle=settle, prolongations=prolongations)
             if band is not None:
                 x, y = band[0], band[1]
