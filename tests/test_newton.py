@@ -296,3 +296,21 @@ def test_obstacle_warm_start_is_invariant_under_a_tension_scale(tension):
     assert [r["newton_its"] for r in scaled.rows] == [r["newton_its"] for r in base.rows]
     assert [r["active_nodes"] for r in scaled.rows] == [r["active_nodes"] for r in base.rows]
     np.testing.assert_allclose(scaled.x, base.x, rtol=0, atol=1e-10 * np.abs(base.x).max())
+
+
+@pytest.mark.parametrize("layout, ordered", [("obstacle", 1), ("membranes", 2), ("permuted", 0), ("partial", 0)])
+def test_gap_from_slices_is_b_x_minus_b(layout, ordered):
+    """g(x) = B x - b read off slices of x for rows in the unknowns' order (an obstacle on 0..m-1, membranes
+    0..m-1 over m..2m-1): bitwise the product B x - b, which the other layouts use; diag(K) extracted once."""
+    rng = np.random.default_rng(8)
+    m = 7
+    n = m if layout == "obstacle" else 2 * m
+    K = sp.diags(rng.random(n) + 1.0, format="csr")
+    up = {"permuted": rng.permutation(m) + m}.get(layout, np.arange(m))
+    lo = {"obstacle": -np.ones(m, dtype=int), "partial": np.where(np.arange(m) < 3, m + np.arange(m), -1),
+          "permuted": np.arange(m)}.get(layout, m + np.arange(m))
+    s = ComplementaritySystem(K, rng.random(n), up, lo, rng.standard_normal(m), np.ones(m))
+    assert s._ordered == ordered
+    x = rng.standard_normal(n)
+    assert np.array_equal(s.gap(x), s._B @ x - s.b)
+    assert np.array_equal(s.diagonal(), K.diagonal()) and s.diagonal() is s.diagonal()

@@ -57,7 +57,7 @@ class FreeBoundaryRelaxation:
         self.system = system
         K = system.K.tocsr()
         self.K = K
-        self.d = K.diagonal()
+        self.d = system.diagonal()
         up, lo = system.up, system.lo
         self.two = lo >= 0
         self.lo_safe = np.where(self.two, lo, up)  # an index for every row (the lower unknown or the upper one)

@@ -135,6 +135,10 @@ class ComplementaritySystem:
     # then reads S and alpha off without comparing K's arrays
     tensions: Optional[Tuple[float, float]] = None
     _B: sp.csr_matrix = field(init=False, repr=False)
+    # rows in the unknowns' order, the gap read off slices of x (the same numbers as B x): 1 an obstacle on
+    # up = 0..m-1, 2 two membranes with up = 0..m-1, lo = m..2m-1; 0 otherwise
+    _ordered: int = field(init=False, repr=False, default=0)
+    _diag: Optional[np.ndarray] = field(init=False, repr=False, default=None)
 
     def __post_init__(self):
         n, m = self.K.shape[0], len(self.up)
@@ -156,6 +160,14 @@ class ComplementaritySystem:
         cols = np.concatenate([self.up, self.lo[has_lo]])
         vals = np.concatenate([np.ones(m), -np.ones(has_lo.sum())])
         self._B = sp.csr_matrix((vals, (rows, cols)), shape=(m, n))
+        if np.array_equal(self.up, np.arange(m)):
+            self._ordered = 1 if not has_lo.any() else (2 if np.array_equal(self.lo, m + np.arange(m)) else 0)
+
+    def diagonal(self) -> np.ndarray:
+        """diag(K), extracted once (K is not changed after construction; rescaled copies share it)."""
+        if self._diag is None:
+            self._diag = self.K.diagonal()
+        return self._diag
 
     @property
     def n(self) -> int:
@@ -211,7 +223,12 @@ class ComplementaritySystem:
         return certificate(self, x, y, tol)
 
     def gap(self, x: np.ndarray) -> np.ndarray:
-        """g(x) = B x - b."""
+        """g(x) = B x - b (on rows in the unknowns' order from slices of x: the same numbers, no product)."""
+        m = len(self.up)
+        if self._ordered == 1:
+            return x[:m] - self.b
+        if self._ordered == 2:
+            return (x[:m] - x[m:2 * m]) - self.b
         return self._B @ x - self.b
 
     def residual(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -321,7 +338,7 @@ class ComplementaritySystem:
         if not one.any():
             return x, y
         if one.all() and self.WARM_SWEEPS:
-            dK = self.K.diagonal()
+            dK = self.diagonal()
             up, n = self.up, len(x)
             every = len(up) == n and (n == 0 or (up[0] == 0 and up[-1] == n - 1 and bool(np.all(np.diff(up) == 1))))
             for _ in range(self.WARM_SWEEPS):
@@ -338,7 +355,7 @@ class ComplementaritySystem:
         x[self.up[rows]] -= g[rows]  # projection: g = 0 there
         g = self.gap(x)
         r = self.K @ x - self.F
-        c = self.K.diagonal()[self.up[one]] / self.D[one]
+        c = self.diagonal()[self.up[one]] / self.D[one]
         y_res = r[self.up[one]] / self.D[one]
         # Newton-min's test is w g <= y (w: the constraint weight); active iff w g <= y0 and c g <= y_res
         #   <=>  w g <= min(y0, w y_res / c)   (w y_res / c is in the units of y)
