@@ -283,6 +283,7 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
     z = prec(r)
     p, rz = z.copy(), float(r @ z)
     last_true = rnorm
+    work = np.empty_like(p)  # alpha p and alpha q formed in place: no new vector per iteration
     while i < maxiter:
         q = A @ p
         pq = float(p @ q)
@@ -291,8 +292,8 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
             hist[-1] = float(np.linalg.norm(r)) / scale
             return finish("stagnation")
         alpha = rz / pq
-        x += alpha * p
-        r -= alpha * q
+        x += np.multiply(p, alpha, out=work)
+        r -= np.multiply(q, alpha, out=work)
         i += 1
         hist.append(float(np.linalg.norm(r)) / scale)
         if monitor is not None and i % nu == 0:  # the monitor sees the true residual; CG goes on unchanged
@@ -317,7 +318,8 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
             continue
         z = prec(r)
         rz_new = float(r @ z)
-        p = z + (rz_new / rz) * p
+        p *= rz_new / rz  # p = z + beta p, in place (the same numbers)
+        p += z
         rz = rz_new
     r = b - A @ x
     hist[-1] = float(np.linalg.norm(r)) / scale

@@ -193,6 +193,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
         return PCGResult(x, 0, True, rnorm / bnorm)
     z = M(r)
     p, rz = z.copy(), float(r @ z)
+    work = np.empty_like(p)  # alpha p and alpha q formed in place: no new vector per iteration
     k = 0
     for k in range(1, maxiter + 1):
         q = A @ p
@@ -200,8 +201,8 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
         if not pq > 0.0:
             break
         alpha = rz / pq
-        x += alpha * p
-        r -= alpha * q
+        x += np.multiply(p, alpha, out=work)
+        r -= np.multiply(q, alpha, out=work)
         rnorm = float(np.linalg.norm(r))
         target = max(tol, floor * np.linalg.norm(x))
         if rnorm <= target:
@@ -216,6 +217,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
             break
         z = M(r)
         rz_new = float(r @ z)
-        p = z + (rz_new / rz) * p
+        p *= rz_new / rz  # p = z + beta p, in place (the same numbers)
+        p += z
         rz = rz_new
     return PCGResult(x, k, False, rnorm / bnorm)
