@@ -10,7 +10,7 @@ from ngcontact.algebra.multigrid import Multigrid, _truncated
 from ngcontact.algebra.system import LINEAR_PATHS
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.drivers import RunOptions, run_scene
-from ngcontact.drivers.level import multigrid_hierarchy
+from ngcontact.drivers.level import galerkin_matrices, multigrid_hierarchy
 from ngcontact.problems.manufactured import scale_problem
 from ngcontact.newton import MultigridSolve, NewtonOptions, semismooth_newton
 from ngcontact.scenes import load_scene
@@ -22,6 +22,7 @@ def _chain(scene_name, levels):
     for mesh in problem.domain.meshes(levels):
         fine = FEMDiscretization(problem, mesh, order=1)
         fine.mg_prolongations = multigrid_hierarchy(fine, disc) if disc is not None else ()
+        fine.mg_matrices = galerkin_matrices(fine, disc)  # as drivers.level.solve_level
         disc = fine
         yield disc
 
@@ -272,6 +273,69 @@ def test_band_of_any_size_is_solved_with_a_hierarchy(ex9_levels, monkeypatch):
     start = fine.prolongate(coarse, sc.x, sc.y)
     assert results[0] is None and results[1] is not None and results[1][2] > 0
     assert semismooth_newton(fine.system, *start, linear=MultigridSolve(prolongations=hierarchy)).iterations == 1
+
+
+def test_galerkin_consistency_of_the_nested_levels(ex9_levels):
+    """The levels' matrices of a nested ex9 run are the Galerkin products of the finer ones and are kept with the
+    finest level (drivers.level.galerkin_matrices); a coarse matrix off by 1e-9 in one entry is refused."""
+    from ngcontact.algebra.multigrid import galerkin_consistent
+
+    fine, coarse = ex9_levels[-1], ex9_levels[-2]
+    Ks = galerkin_matrices(fine, coarse)
+    assert len(Ks) == len(fine.mg_prolongations) and all(K is d.system.K for K, d in zip(Ks, ex9_levels[:-1]))
+    P = fine.mg_prolongations[-1]
+    assert galerkin_consistent(P, fine.system.K, coarse.system.K)
+    off = coarse.system.K.copy()
+    off.data[off.nnz // 2] *= 1 + 1e-9
+    assert not galerkin_consistent(P, fine.system.K, off)
+    assert not galerkin_consistent(P, fine.system.K, 2.0 * coarse.system.K)
+
+
+@pytest.mark.parametrize("scene_name", ["ex9_obstacle", "test1"])
+def test_truncated_hierarchy_from_the_levels_matrices_is_the_galerkin_one(scene_name):
+    """The truncated hierarchy whose clean rows are read off the levels' matrices equals the one of the Galerkin
+    products (same rows up to rounding; test 1's assembled coarse matrices drop the right-angle zeros that the
+    products leave at 1e-16), for unknowns dropped in a disk around the centre as by a contact set."""
+    from ngcontact.algebra.sparse import submatrix
+
+    fine = list(_chain(scene_name, 4))[-1]
+    assert len(fine.mg_matrices) == 3
+    s = fine.system
+    pts = fine.nodes.coords[fine.interior]
+    r = np.linalg.norm(pts - pts.mean(axis=0), axis=1)
+    keep = np.ones(s.n, dtype=bool)
+    keep[:len(pts)] = r > 0.3 * r.max()
+    A = submatrix(s.K, keep, keep)
+    plain = Multigrid(A, fine.mg_prolongations, keep)
+    read = Multigrid(A, fine.mg_prolongations, keep, matrices=fine.mg_matrices + (s.K,))
+    for a, b in zip(plain.levels[1:], read.levels[1:]):
+        assert a.A.shape == b.A.shape
+        assert abs(a.A - b.A).max() <= 1e-13 * abs(a.A).max()
+    v = np.random.default_rng(3).standard_normal(A.shape[0])
+    assert np.abs(plain(v) - read(v)).max() <= 1e-10 * np.abs(plain(v)).max()
+
+
+def test_nested_multigrid_newton_hands_the_levels_matrices_to_its_hierarchy(monkeypatch):
+    """A nested multigrid Newton run of the ex9 obstacle problem builds the finest steps' hierarchy with the matrices
+    of all its levels (the finest one included): the same Newton and CG counts and solution as without them."""
+    import ngcontact.algebra.multigrid as mgmod
+
+    seen = []
+    init = mgmod.Multigrid.__init__
+
+    def spy(self, A, prolongations, keep=None, **kw):
+        seen.append((len(prolongations), len(kw.get("matrices", ()))))
+        init(self, A, prolongations, keep, **kw)
+
+    monkeypatch.setattr(mgmod.Multigrid, "__init__", spy)
+    sc = load_scene("ex9_obstacle")
+    with_m = run_scene(sc, RunOptions(levels=4, newton="multigrid"))
+    assert (3, 4) in seen  # a finest-level Newton step (the warm start's band solves take the products)
+    monkeypatch.setattr("ngcontact.drivers.level.galerkin_matrices", lambda disc, coarser: ())
+    without = run_scene(sc, RunOptions(levels=4, newton="multigrid"))
+    assert [q["newton_its"] for q in with_m.rows] == [q["newton_its"] for q in without.rows]
+    assert [q["cg_its"] for q in with_m.rows] == [q["cg_its"] for q in without.rows]
+    np.testing.assert_allclose(with_m.x, without.x, rtol=0, atol=1e-12 * np.abs(without.x).max())
 
 
 def test_early_exit_checks_no_iterate_that_meets_the_target(ex9_levels):

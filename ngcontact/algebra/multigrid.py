@@ -12,7 +12,13 @@ step does not keep (Kornhuber's truncated multigrid, here in Galerkin form):
     coarse unknowns removed level by level),
 
 so every coarse correction is a correction of the reduced problem: it never moves a fixed
-unknown, and near the free boundary the coarse functions see the contact exactly.  The
+unknown, and near the free boundary the coarse functions see the contact exactly.  Away from the
+fixed unknowns the truncation changes nothing: where the unconstrained matrices K_l of the levels
+are at hand (``matrices``; a nested run has them, :func:`galerkin_consistent` checks that
+K_{l-1} = P_l^T K_l P_l), a row i of A_{l-1} is read off K_{l-1} when the fine rows in the support
+of its basis function are *clean* -- rows of A_l that are rows of K_l (finest level: kept unknowns
+whose neighbours in K are all kept; coarser: rows whose support is clean) -- and only the other
+rows are formed by the products (:func:`_galerkin_rows`).  The
 V-cycle smooths with Gauss-Seidel (forward before, backward after the coarse correction: the
 cycle is a symmetric positive definite operator, a valid CG preconditioner; pyamg's compiled
 kernel) or with a Chebyshev polynomial in D^{-1} A (the same before and after; numpy only), and
@@ -38,12 +44,15 @@ from .linalg import SPDSolver
 from .sparse import abs_row_sums, submatrix
 
 __all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "HierarchyCache", "SMOOTHERS", "p1_prolongation",
-           "field_prolongation"]
+           "field_prolongation", "galerkin_consistent"]
 
 #: V-cycle smoothers of :class:`Multigrid`
 SMOOTHERS = ("gauss-seidel", "chebyshev")
 #: coarsest levels up to this size are factorized densely (a sparse factorization's set-up costs more there)
 DENSE_COARSE = 1000
+#: :func:`galerkin_consistent`: K_c v and P^T K P v of a random v agree to this times ||K_c||_inf ||v||_inf (the
+#: products round at 1e-16 of that; a coarse matrix that is not the Galerkin product differs at order 1)
+GALERKIN_RTOL = 1e-12
 
 
 def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_interior: np.ndarray,
@@ -96,6 +105,62 @@ def _truncated(P: sp.csr_matrix, rows) -> "tuple[sp.csr_matrix, np.ndarray]":
     return sp.csr_matrix((P.data[entries], new_col[cols], indptr), shape=(int(np.count_nonzero(sel)), len(used))), used
 
 
+def galerkin_consistent(P: sp.csr_matrix, K: sp.csr_matrix, Kc: sp.csr_matrix) -> bool:
+    """Whether the coarse matrix ``Kc`` is the Galerkin product P^T K P (to ``GALERKIN_RTOL``), tested on one random
+    vector (seeded): three products instead of the triple product.  Nested conforming spaces with the same bilinear
+    form give it exactly in exact arithmetic (P1 on nested meshes with piecewise constant coefficients)."""
+    if P.shape != (K.shape[0], Kc.shape[0]) or K.shape[0] != K.shape[1] or Kc.shape[0] != Kc.shape[1]:
+        return False
+    if Kc.shape[0] == 0:
+        return True
+    v = np.random.default_rng(0).standard_normal(Kc.shape[0])
+    e = P.T @ (K @ (P @ v)) - Kc @ v
+    return float(np.abs(e).max()) <= GALERKIN_RTOL * float(abs_row_sums(Kc).max()) * float(np.abs(v).max())
+
+
+def _clean_fine(K: sp.csr_matrix, keep: np.ndarray) -> np.ndarray:
+    """Rows of K[keep][:, keep] that are rows of K: kept unknowns whose neighbours in K are all kept (mask)."""
+    bad = (~keep).view(np.uint8)
+    touched = np.zeros(K.shape[0], dtype=bool)
+    full = np.diff(K.indptr) > 0
+    if full.any():
+        touched[full] = np.maximum.reduceat(bad[K.indices[:K.indptr[-1]]], K.indptr[:-1][full]) > 0
+    return keep & ~touched
+
+
+def _galerkin_rows(A: sp.csr_matrix, P: sp.csr_matrix, used: np.ndarray, P_full: sp.csr_matrix,
+                   clean: np.ndarray, Kc: sp.csr_matrix) -> "tuple[sp.csr_matrix, np.ndarray]":
+    """(P^T A P, clean rows of the coarse level): rows whose basis function is supported on ``clean`` fine rows
+    (rows of A that are rows of the unconstrained K, over the fine level's numbering) are K_c's rows (their
+    columns are all in ``used``); the others are formed by products.  ``P`` = P_full[rows of A][:, used]."""
+    dirty = (P_full.T @ (~clean).astype(np.float32)) > 0  # P >= 0: a positive sum is a non-clean fine row
+    clean_c = np.zeros(P_full.shape[1], dtype=bool)
+    clean_c[used] = True
+    clean_c &= ~dirty
+    keep_rows = clean_c[used]
+    own, other = np.flatnonzero(keep_rows), np.flatnonzero(~keep_rows)
+    rows_own = submatrix(Kc, used[own], used)
+    rows_other = (_transpose_csr(P)[other] @ A) @ P
+    return _merge_rows(len(used), own, rows_own, other, rows_other), clean_c
+
+
+def _merge_rows(n: int, idx1: np.ndarray, M1: sp.csr_matrix, idx2: np.ndarray, M2: sp.csr_matrix) -> sp.csr_matrix:
+    """The n-row CSR matrix whose rows idx1 are those of M1 and rows idx2 those of M2 (disjoint, covering 0..n-1)."""
+    counts = np.zeros(n, dtype=np.int64)
+    counts[idx1] = np.diff(M1.indptr)
+    counts[idx2] = np.diff(M2.indptr)
+    nnz = int(counts.sum())
+    itype = np.int32 if max(nnz, M1.shape[1]) < np.iinfo(np.int32).max else np.int64
+    indptr = np.zeros(n + 1, dtype=itype)
+    np.cumsum(counts, out=indptr[1:])
+    data, indices = np.empty(nnz), np.empty(nnz, dtype=itype)
+    for idx, M in ((idx1, M1), (idx2, M2)):
+        pos = np.arange(M.nnz, dtype=np.int64) + np.repeat(indptr[idx].astype(np.int64) - M.indptr[:-1], np.diff(M.indptr))
+        data[pos] = M.data
+        indices[pos] = M.indices
+    return sp.csr_matrix((data, indices, indptr), shape=(n, M1.shape[1]))
+
+
 def _level(A: sp.csr_matrix, P: sp.csr_matrix, chebyshev: bool) -> MultigridLevel:
     if not chebyshev:  # Gauss-Seidel needs A only
         return MultigridLevel(A, P)
@@ -129,14 +194,17 @@ class Multigrid:
     """Symmetric V-cycle preconditioner of the reduced system of one Newton step (module docstring).
 
     ``prolongations``: P_1..P_L of the unconstrained unknowns, coarse to fine (P_L maps level L-1 to
-    the unknowns of ``keep``'s length); ``keep``: the unknowns of A among them (None: all).
+    the unknowns of ``keep``'s length); ``keep``: the unknowns of A among them (None: all), A = K_L[keep][:, keep]
+    when ``matrices`` K_0..K_L (the unconstrained matrices of the levels, Galerkin-consistent with the
+    prolongations) are given: the clean rows of every coarse matrix are then read off them (module docstring).
     ``smoother``: one of :data:`SMOOTHERS`; ``degree``: its sweeps (Gauss-Seidel) or steps (Chebyshev)
     before and after the coarse correction; ``ratio``: the Chebyshev smoother damps the part
     [lmax / ratio, lmax] of the spectrum of D^-1 A.
     """
 
     def __init__(self, A: sp.csr_matrix, prolongations: Sequence[sp.csr_matrix], keep: Optional[np.ndarray] = None,
-                 *, degree: int = 1, ratio: float = 8.0, solver: str = "sparsecholesky", smoother: str = "gauss-seidel"):
+                 *, degree: int = 1, ratio: float = 8.0, solver: str = "sparsecholesky", smoother: str = "gauss-seidel",
+                 matrices: Sequence[sp.csr_matrix] = ()):
         if smoother not in SMOOTHERS:
             raise ValueError(f"smoother must be one of {SMOOTHERS}, got {smoother!r}")
         t0 = time.perf_counter()
@@ -150,12 +218,20 @@ class Multigrid:
         levels: List[MultigridLevel] = []
         self._finest = (Ps[-1] if Ps else None, None)
         rows = keep if keep is not None else (np.ones(Ps[-1].shape[0], dtype=bool) if Ps else None)
+        clean = None
+        if Ps and len(matrices) == len(Ps) + 1:
+            mask = np.zeros(Ps[-1].shape[0], dtype=bool)
+            mask[rows] = True
+            clean = _clean_fine(matrices[-1], mask)
         for j in range(len(Ps) - 1, -1, -1):
             P, used = _truncated(Ps[j], rows)
             if j == len(Ps) - 1:
                 self._finest = (Ps[-1], used)
             levels.append(_level(A, P, smoother == "chebyshev"))
-            A = _transpose_csr(P) @ (A @ P)  # CSR products only (a CSC factor would convert A P)
+            if clean is not None:
+                A, clean = _galerkin_rows(A, P, used, Ps[j], clean, matrices[j])
+            else:
+                A = _transpose_csr(P) @ (A @ P)  # CSR products only (a CSC factor would convert A P)
             rows = used
         levels.append(MultigridLevel(A, None))
         self.levels = levels  # fine first
@@ -273,8 +349,9 @@ class HierarchyCache:
     classes ``eq``, ``mixed``, ``w``, kept unknowns ``keep``, ``size``, the reduced matrix ``A`` and
     ``share_matrix`` (:class:`~ngcontact.algebra.step.LinearizedStep`)."""
 
-    def __init__(self, prolongations, opt, solver: str):
+    def __init__(self, prolongations, opt, solver: str, matrices=()):
         self.prolongations, self.opt, self.solver = tuple(prolongations), opt, solver
+        self.matrices = tuple(matrices)  # K_0..K_L of the levels (Multigrid), or ()
         self.mg = None
         self._rows = None  # row classes the hierarchy was built for
 
@@ -296,8 +373,15 @@ class HierarchyCache:
         opt = self.opt
         if self.prolongations:
             self.mg = Multigrid(lin.A, self.prolongations, lin.keep, degree=opt.degree, ratio=opt.ratio,
-                                solver=self.solver, smoother=opt.smoother)
+                                solver=self.solver, smoother=opt.smoother, matrices=self._matrices(lin))
         else:
             self.mg = AlgebraicMultigrid(lin.A)
         self._rows = tuple(np.array(a, copy=True) for a in rows)
         return self.mg, 1
+
+    def _matrices(self, lin):
+        """The levels' matrices where the step's matrix is K restricted to the kept unknowns (no mixed rows, every
+        slave an obstacle row's unknown, not merged into a master), else ()."""
+        if not self.matrices or lin.mixed.any() or lin.slave_is_lo.any():
+            return ()
+        return self.matrices

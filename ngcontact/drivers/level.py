@@ -13,6 +13,7 @@ from typing import Callable, List, Optional
 
 import numpy as np
 
+from ..algebra.multigrid import galerkin_consistent
 from ..discretizations import DISCRETIZATIONS
 from ..estimators import EstimatorOptions, algebraic_flux, estimate, estimate_components, expect_repeated_evaluations
 from ..newton import NewtonOptions, Reference, decoupled_newton, semismooth_newton
@@ -80,7 +81,8 @@ def newton_solve(disc, x0, y0, options, callback=None, warm: bool = False):
     if options.newton in ("direct",) + tuple(MULTIGRID_NEWTON):
         stop = options.stop_options.rule(Reference(np.array(x0, dtype=float), 2.0 ** -options.order) if warm else None)
         if options.newton != "direct":  # CG + multigrid on the hierarchy of this run's levels
-            linear = replace(options.linear, prolongations=tuple(getattr(disc, "mg_prolongations", ())))
+            linear = replace(options.linear, prolongations=tuple(getattr(disc, "mg_prolongations", ())),
+                             matrices=tuple(getattr(disc, "mg_matrices", ())))
             return semismooth_newton(disc.system, x0, y0, nopts, callback, linear=linear, stop=stop)
         solve = decoupled_newton if options.decouple else semismooth_newton
         return solve(disc.system, x0, y0, nopts, callback, stop=stop)
@@ -121,6 +123,7 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
     t0 = time.perf_counter()
     if options.newton in MULTIGRID_NEWTON or (options.newton in GMRES_NEWTON and options.krylov == "cg"):
         disc.mg_prolongations = multigrid_hierarchy(disc, previous[0] if previous is not None else None)
+        disc.mg_matrices = galerkin_matrices(disc, previous[0] if previous is not None else None)
     x0, y0 = disc.prolongate(*previous, cfun=options.cfun) if warm else disc.initial_guess(initial_guess)
     previous = None
     t1 = time.perf_counter()
@@ -135,6 +138,21 @@ def solve_level(problem, mesh, options, *, previous=None, initial_guess=None, wi
                        err_energy=errs.get("err_energy"), errors=False)
     t4 = time.perf_counter()
     return LevelOutcome(disc, sol, errs, comp, est, t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+
+
+def galerkin_matrices(disc, coarser) -> tuple:
+    """The unconstrained matrices K_0..K_{L-1} of the levels below ``disc`` (those of ``coarser`` and its own) when
+    each is the Galerkin product P^T K P of the next finer one
+    (:func:`~ngcontact.algebra.multigrid.galerkin_consistent`): the truncated multigrid of the Newton steps then
+    reads its coarse matrices off them away from the contact set; () otherwise (a missing link, a level that is
+    not the Galerkin product)."""
+    Ps = tuple(getattr(disc, "mg_prolongations", ()))
+    if coarser is None or not Ps:
+        return ()
+    below = tuple(getattr(coarser, "mg_matrices", ()))
+    if len(below) != len(Ps) - 1 or not galerkin_consistent(Ps[-1], disc.system.K, coarser.system.K):
+        return ()
+    return below + (coarser.system.K,)
 
 
 def multigrid_hierarchy(disc, coarser) -> tuple:

@@ -96,6 +96,8 @@ class MultigridIterationRecord(IterationRecord):
 class MultigridSolve:
     """PCG + truncated multigrid on the reduced Newton system (module docstring).  Fields validated once.
 
+    ``matrices``: the unconstrained matrices of the levels below (Galerkin-consistent with the prolongations; the
+    coarse matrices of the truncated hierarchy are read off them away from the contact set), or ();
     ``prolongations``: the nested P1 prolongations of the unconstrained unknowns, coarse to fine
     (a tuple; empty: algebraic multigrid from ``amg_min_size`` reduced unknowns, below that the step
     is factorized); ``tol``: the Newton tolerance the ``accuracy`` factor refers to.
@@ -119,6 +121,7 @@ class MultigridSolve:
     relax_sweeps: int = 20        # free-boundary relaxation of the iterates of Newton-min steps (0: none)
     relax_steps: int = 4          # ... of the first steps that change the active set
     prolongations: Tuple = ()
+    matrices: Tuple = ()          # K_0..K_{L-1} of the levels below, Galerkin-consistent (drivers.level)
     record_type = MultigridIterationRecord
 
     def __post_init__(self):
@@ -149,7 +152,8 @@ class MultigridSolve:
 class _MultigridSession:
     def __init__(self, opt: MultigridSolve, system):
         self.opt, self.system = opt, system
-        self.hierarchy = HierarchyCache(opt.prolongations, opt, system.solver)
+        matrices = tuple(opt.matrices) + (system.K,) if opt.matrices else ()
+        self.hierarchy = HierarchyCache(opt.prolongations, opt, system.solver, matrices=matrices)
         self.cg_cum = 0
         self._relaxation = None
         self.split = MembraneSplit.build(system, opt) if opt.split else None
