@@ -314,3 +314,25 @@ def test_gap_from_slices_is_b_x_minus_b(layout, ordered):
     x = rng.standard_normal(n)
     assert np.array_equal(s.gap(x), s._B @ x - s.b)
     assert np.array_equal(s.diagonal(), K.diagonal()) and s.diagonal() is s.diagonal()
+
+
+@pytest.mark.parametrize("scene_name", ["ex9_obstacle", "test1"])
+def test_reduced_right_hand_side_and_diagonal_by_indexing(scene_name):
+    """The reduced step's right-hand side Z^T (rhs - K x_aff) and diag(A), read off by indexing where Z selects the
+    kept unknowns (obstacle rows), equal the products; the membranes' merged slaves keep the products."""
+    from ngcontact.discretizations.fem import FEMDiscretization
+    from ngcontact.scenes import load_scene
+
+    problem = load_scene(scene_name).problem
+    disc = FEMDiscretization(problem, list(problem.domain.meshes(3))[2], order=1)
+    s = disc.system  # a varying diagonal (the structured ex9 mesh has a constant one)
+    s = ComplementaritySystem(s.K + sp.diags(np.random.default_rng(9).random(s.n)), s.F, s.up, s.lo, s.b, s.D)
+    one = semismooth_newton(s, *disc.initial_guess(None), NewtonOptions(maxit=1))
+    x, y = one.x, one.y
+    cf = get_cfunction("min")
+    C = cf.value(*s.pair(x, y))
+    lin = s.linearize(x, y, C, *s.chain(*cf.jacobian(*s.pair(x, y))))
+    assert lin.eq.any() and (~lin.eq).any()
+    assert lin.slave_is_lo.any() == (scene_name == "test1")
+    np.testing.assert_array_equal(lin.b, lin.Z.T @ (lin.rhs - s.K @ lin.x_aff))
+    np.testing.assert_array_equal(lin.diagonal(), lin.A.diagonal())

@@ -80,10 +80,18 @@ class LinearizedStep:
 
     @property
     def b(self) -> np.ndarray:
-        """The reduced right-hand side Z^T (rhs - Kaug x_aff) (formed on first use)."""
+        """The reduced right-hand side Z^T (rhs - Kaug x_aff) (formed on first use; where Z selects the kept unknowns,
+        by indexing)."""
         if self._b is None:
-            self._b = self.Z.T @ (self.rhs - self._Kaug @ self.x_aff)
+            v = self.rhs - self._Kaug @ self.x_aff
+            self._b = self.Z.T @ v if self.slave_is_lo.any() else v[self.keep]
         return self._b
+
+    def diagonal(self) -> np.ndarray:
+        """diag(A) (where A is K restricted to the kept unknowns, read off the system's diagonal)."""
+        if not self.slave_is_lo.any() and not self.mixed.any() and hasattr(self.system, "diagonal"):
+            return self.system.diagonal()[self.keep]
+        return self.A.diagonal()
 
     @property
     def A(self) -> sp.csr_matrix:

@@ -248,12 +248,14 @@ class _MultigridSession:
         its iterate)."""
         opt = self.opt
         bnorm = float(np.linalg.norm(b)) or 1.0
-        r0 = float(np.linalg.norm(b - A @ z0))
         stop = {}
 
         def monitor(st):
             # no check before the residual dropped, nor at an iterate that meets the target (CG stops there anyway)
-            if st.i == 0 or st.res * bnorm > opt.early_reduction * r0 or st.res * bnorm <= target:
+            if st.i == 0:
+                stop["r0"] = st.res * bnorm  # the initial true residual ||b - A z0||
+                return False
+            if st.res * bnorm > opt.early_reduction * stop["r0"] or st.res * bnorm <= target:
                 return False
             if np.array_equal(active(st.x), eq):
                 return False
@@ -262,7 +264,7 @@ class _MultigridSession:
 
         kr = cg(A, b, z0, _Callable(mg), rtol=target / bnorm, maxiter=opt.maxiter, nu=opt.early_every,
                 monitor=monitor)
-        if not stop:
+        if "i" not in stop:
             return PCGResult(kr.x, kr.iterations, kr.converged, kr.res), False
         return PCGResult(kr.x, kr.iterations, True, kr.res), True
 
@@ -272,7 +274,7 @@ class _MultigridSession:
         differ by many orders (mu1 / mu2 = 1e12) the soft membrane's unknowns may still be off by more than
         the exit certificate allows.  CG continues with 1e-3 times the target, at most three times."""
         opt = self.opt
-        dA = lin.A.diagonal()
+        dA = lin.diagonal()
         for _ in range(3):
             if not res.converged:
                 break
