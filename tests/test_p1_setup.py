@@ -8,7 +8,7 @@ from ngsolve import H1, BilinearForm, LinearForm, dx, grad
 import ngcontact.discretizations.fem as fem
 import ngcontact.discretizations.p1_levels as p1_levels
 from ngcontact import CrissCrossSquare, StructuredSquare
-from ngcontact.algebra.sparse import abs_row_sums, submatrix
+from ngcontact.algebra.sparse import abs_row_sums, row_entries, submatrix
 from ngcontact.discretizations.base import scipy_csr
 from ngcontact.discretizations.lagrange import LagrangeNodes
 from ngcontact.discretizations.p1 import dirichlet_vertices, p1_matrices, p1_tables, symmetric_from_upper
@@ -163,6 +163,17 @@ def test_symmetric_from_upper_is_the_sparse_sum():
     assert got.has_canonical_format and np.diff(got.indptr)[11] == 0 and np.diff(U.indptr)[0] > 0
     for name in ("indptr", "indices", "data"):
         assert np.array_equal(getattr(got, name), getattr(want, name)), name
+
+
+def test_row_entries_are_those_of_the_row_index():
+    """row_entries(indptr, rows) reads the entries of the rows in their order, repeated and empty rows included."""
+    A = sp.random(30, 20, density=0.15, random_state=8, format="lil")
+    A[4, :] = 0.0
+    A = A.tocsr()
+    rows = np.array([7, 4, 0, 29, 7, 13])
+    assert np.array_equal(A.indices[row_entries(A.indptr, rows)], A[rows].indices)
+    assert np.array_equal(A.data[row_entries(A.indptr, rows)], A[rows].data)
+    assert len(row_entries(A.indptr, np.array([], dtype=int))) == 0
 
 
 def test_submatrix_refuses_bad_selections():

@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .linalg import SPDSolver
-from .sparse import abs_row_sums, submatrix
+from .sparse import abs_row_sums, row_entries, submatrix
 
 __all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "HierarchyCache", "SMOOTHERS", "p1_prolongation",
            "field_prolongation", "galerkin_consistent"]
@@ -119,12 +119,10 @@ def galerkin_consistent(P: sp.csr_matrix, K: sp.csr_matrix, Kc: sp.csr_matrix) -
 
 
 def _clean_fine(K: sp.csr_matrix, keep: np.ndarray) -> np.ndarray:
-    """Rows of K[keep][:, keep] that are rows of K: kept unknowns whose neighbours in K are all kept (mask)."""
-    bad = (~keep).view(np.uint8)
+    """Rows of K[keep][:, keep] that are rows of K: kept unknowns whose neighbours in K are all kept (mask).  K is
+    symmetric, so the unknowns next to a dropped one are the columns of the dropped unknowns' rows."""
     touched = np.zeros(K.shape[0], dtype=bool)
-    full = np.diff(K.indptr) > 0
-    if full.any():
-        touched[full] = np.maximum.reduceat(bad[K.indices[:K.indptr[-1]]], K.indptr[:-1][full]) > 0
+    touched[K.indices[row_entries(K.indptr, np.flatnonzero(~keep))]] = True
     return keep & ~touched
 
 

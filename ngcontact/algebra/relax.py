@@ -34,7 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .linalg import SPDSolver, pcg
-from .sparse import submatrix
+from .sparse import row_entries, submatrix
 
 __all__ = ["FreeBoundaryRelaxation"]
 
@@ -165,7 +165,7 @@ class FreeBoundaryRelaxation:
         for _ in range(layers):
             if not len(front):
                 break
-            nb = G.indices[_entries_of_rows(G.indptr, front)]
+            nb = G.indices[row_entries(G.indptr, front)]
             nb = nb[~seen[nb]]
             seen[nb] = True
             front = nb[np.unique(nb, return_index=True)[1]] if len(nb) > 1 else nb
@@ -220,15 +220,6 @@ class FreeBoundaryRelaxation:
         y[rows] = np.where(hit, np.maximum(y_res, 0.0), 0.0)
         changed = int(np.count_nonzero(hit != active[rows]))
         return x, y, changed
-
-
-def _entries_of_rows(indptr: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Positions of the entries of ``rows`` of a CSR matrix with row pointer ``indptr``, row after row (what
-    ``G[rows].indices`` reads, without building the submatrix)."""
-    starts = indptr[rows].astype(np.int64)
-    counts = indptr[np.asarray(rows) + 1] - starts
-    offsets = np.cumsum(counts) - counts  # position of each row's first entry in the result
-    return np.arange(int(counts.sum()), dtype=np.int64) + np.repeat(starts - offsets, counts)
 
 
 def _row_graph(K: sp.csr_matrix, up: np.ndarray) -> sp.csr_matrix:
