@@ -315,9 +315,11 @@ def test_truncated_hierarchy_from_the_levels_matrices_is_the_galerkin_one(scene_
     assert np.abs(plain(v) - read(v)).max() <= 1e-10 * np.abs(plain(v)).max()
 
 
-def test_nested_multigrid_newton_hands_the_levels_matrices_to_its_hierarchy(monkeypatch):
-    """A nested multigrid Newton run of the ex9 obstacle problem builds the finest steps' hierarchy with the matrices
-    of all its levels (the finest one included): the same Newton and CG counts and solution as without them."""
+@pytest.mark.parametrize("scene_name", ["ex9_obstacle", "test1"])
+def test_nested_multigrid_newton_hands_the_levels_matrices_to_its_hierarchy(scene_name, monkeypatch):
+    """A nested multigrid Newton run builds the finest steps' hierarchy with the matrices of all its levels (the
+    finest one included; test 1: the s/w splitting's S, the leading blocks): the same Newton and CG counts and
+    solution as without them."""
     import ngcontact.algebra.multigrid as mgmod
 
     seen = []
@@ -328,7 +330,7 @@ def test_nested_multigrid_newton_hands_the_levels_matrices_to_its_hierarchy(monk
         init(self, A, prolongations, keep, **kw)
 
     monkeypatch.setattr(mgmod.Multigrid, "__init__", spy)
-    sc = load_scene("ex9_obstacle")
+    sc = load_scene(scene_name)
     with_m = run_scene(sc, RunOptions(levels=4, newton="multigrid"))
     assert (3, 4) in seen  # a finest-level Newton step (the warm start's band solves take the products)
     monkeypatch.setattr("ngcontact.drivers.level.galerkin_matrices", lambda disc, coarser: ())

@@ -56,6 +56,17 @@ def single_field(prolongations) -> Optional[tuple]:
     return tuple(out)
 
 
+def _upper_block(K: sp.csr_matrix) -> Optional[sp.csr_matrix]:
+    """K[:m, :m] (m = half of K's rows) of a block-diagonal K as a view of K's arrays, or None (K has an entry of
+    the first m rows right of column m)."""
+    K = K.tocsr()
+    m = K.shape[0] // 2
+    nnz1 = int(K.indptr[m])
+    if nnz1 and int(K.indices[:nnz1].max()) >= m:
+        return None
+    return sp.csr_matrix((K.data[:nnz1], K.indices[:nnz1], K.indptr[:m + 1]), shape=(m, m), copy=False)
+
+
 def _lower_block(K: sp.csr_matrix, m: int) -> sp.csr_matrix:
     """K[m:, m:] of a block-diagonal K (no entry of the rows m.. left of column m): a view of K's arrays but for the
     shifted column indices."""
@@ -70,6 +81,9 @@ def _lower_block(K: sp.csr_matrix, m: int) -> sp.csr_matrix:
 class _WStep:
     """The w-system of one coupled step, with the interface :class:`~ngcontact.algebra.multigrid.HierarchyCache`
     reads (row classes, kept unknowns, the reduced matrix formed on first use)."""
+
+    #: no unknown of the w-system is merged into another (its matrix is Kw restricted to the kept unknowns)
+    slave_is_lo = np.zeros(0, dtype=bool)
 
     def __init__(self, Kw: sp.csr_matrix, keep: np.ndarray, b: np.ndarray, lin):
         self.Kw, self.keep, self.b = Kw, keep, b
@@ -94,15 +108,16 @@ class MembraneSplit:
     """The s/w splitting of one Newton run's two-membrane system (module docstring); :meth:`build` returns None
     where it does not apply."""
 
-    def __init__(self, system, S: sp.csr_matrix, alpha: float, prolongations: tuple, opt):
+    def __init__(self, system, S: sp.csr_matrix, alpha: float, prolongations: tuple, opt, matrices: tuple = ()):
         self.system, self.S, self.alpha, self.opt = system, S, float(alpha), opt
         self.prolongations = prolongations
+        self.matrices = matrices  # S of the levels (the leading blocks of their K), S last; or ()
         m = system.m
         self.Fw = system.F[:m] - system.F[m:] / alpha
         self.a = 1.0 + 1.0 / alpha
         self.dS = S.diagonal()
         self.K22 = _lower_block(system.K, m)  # the x_2 block of K (alpha S up to rounding)
-        self.hierarchy = HierarchyCache(prolongations, opt, system.solver)
+        self.hierarchy = HierarchyCache(prolongations, opt, system.solver, matrices=matrices)
         self.s = None  # s' (the same for every step), solved at the first step
         self._mg_s = None  # its V-cycle, built when s of the iterate does not solve its equation
         self.its = 0  # CG iterations of the last :meth:`step` (s and w), also when it returned None
@@ -120,7 +135,10 @@ class MembraneSplit:
         Ps = single_field(opt.prolongations)
         if Ps is None or Ps[-1].shape[0] != system.m:
             return None
-        return cls(system, S, alpha, Ps, opt)
+        # the levels' S: the leading blocks of their K (Galerkin-consistent as the K are, P = blockdiag(P1, P1))
+        blocks = tuple(_upper_block(K) for K in getattr(opt, "matrices", ()))
+        matrices = blocks + (S,) if blocks and all(B is not None for B in blocks) else ()
+        return cls(system, S, alpha, Ps, opt, matrices)
 
     def _solve_s(self, x: np.ndarray, target: float) -> bool:
         """s' = S^-1 (F_1 + F_2) from s of the iterate x, to ||S s' - F_1 - F_2|| <= ``target``: whether CG got
@@ -134,7 +152,7 @@ class MembraneSplit:
             return True
         if self._mg_s is None:
             self._mg_s = Multigrid(self.S, self.prolongations, None, degree=self.opt.degree, ratio=self.opt.ratio,
-                                   solver=sys_.solver, smoother=self.opt.smoother)
+                                   solver=sys_.solver, smoother=self.opt.smoother, matrices=self.matrices)
         res = pcg(self.S, rhs, self._mg_s, s0, rtol=target / bnorm, maxiter=self.opt.maxiter)
         self.its += res.iterations
         if not res.converged:
