@@ -38,15 +38,14 @@ def submatrix(A: sp.spmatrix, rows, cols) -> sp.csr_matrix:
     new_col[c] = np.arange(len(c), dtype=itype)
     row_in = np.zeros(nr, dtype=bool)
     row_in[r] = True
-    counts = np.diff(A.indptr)
-    keep = np.repeat(row_in, counts)
+    keep = np.repeat(row_in, np.diff(A.indptr))
     cj = new_col[A.indices]
     keep &= cj >= 0
-    per_row = np.zeros(nr, dtype=np.int64)  # kept entries of every row (segment sums over the nonempty rows)
-    full = counts > 0
-    if full.any():
-        per_row[full] = np.add.reduceat(keep[:A.indptr[-1]], A.indptr[:-1][full], dtype=np.int64)
-    indptr = np.concatenate([[0], np.cumsum(per_row[r])]).astype(itype)
+    # kept entries before each position: the rows that are not selected keep none, so the result's row pointer is
+    # the count at the ends of the selected rows
+    count = np.zeros(len(keep) + 1, dtype=itype)
+    np.cumsum(keep, out=count[1:])
+    indptr = np.concatenate([np.zeros(1, dtype=itype), count[A.indptr[r + 1]]])
     return sp.csr_matrix((A.data[keep], cj[keep], indptr), shape=(len(r), len(c)))
 
 
