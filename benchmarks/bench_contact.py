@@ -34,9 +34,10 @@ Columns (one row per finest level N of a nested run from the coarsest mesh):
   cg_its       (-mg) CG iterations per level, coarse to fine (level 0 is factorized)
   t_linear_split_s, ratio_split  (two membranes, K = blockdiag(S, alpha S)) the unconstrained problem's
                fastest direct solve: one factorization of S, two solves -- the stricter baseline
-  (ex9 cases: the whole nested run and the linear solves are each timed twice in the same process, test1-mg three
-   times; the finest level's CG + multigrid solve right after each run, so that both sides of the ratio see the same
-   phases of the shared machine (it varies by 10-30 % within minutes); every column takes the minimum)
+  (ex9 cases and test1-mg: the whole nested run and the linear solves are each timed three times in the same process
+   (the first run includes imports and first-touch memory); the finest level's CG + multigrid solve right after each
+   run, so that both sides of the ratio see the same phases of the shared machine (it varies by 10-30 % within
+   minutes); every column takes the minimum)
   newton_its   Newton iterations per level, coarse to fine
   peak_rss_mb  resource.getrusage peak resident memory of the case's process (the baseline solves of the finest
                level run on its algebraic system; its mesh and space are released before them)
@@ -111,9 +112,9 @@ def run_case(case: str, quick: bool) -> list:
         levels = 5 if quick else 7
         report = (levels - 1,)
         opts = RunOptions(levels=levels, decouple="decoupled" in case, newton_stop=stop, newton=newton)
-    # best of `repeat` (ex9: 2, test1 multigrid: 3), the finest level's fastest linear solve timed right after each run
+    # best of `repeat` (ex9 and test1 multigrid: 3), the finest level's fastest linear solve timed right after each run
     # (interleaved, so that both sides of the ratio see the same phases of the shared machine)
-    repeat = 2 if case.startswith("ex9") else (3 if newton == "multigrid" else 1)
+    repeat = 3 if case.startswith("ex9") or newton == "multigrid" else 1
     runs, fast_finest = [], []  # rows of every repetition; only the last result's algebra is kept alive
     finest = None
     for _ in range(repeat):
@@ -247,7 +248,7 @@ def main(argv=None):
              "`benchmarks/bench_contact.py`. P1, nested Newton-min, 2 NGSolve threads, 1 OpenBLAS thread; "
              "cases without -mg: sparse Cholesky per Newton step, -mg: CG + truncated multigrid "
              "(`--newton multigrid`). PETSc reference (REFERENCE.md, issue 24): vinewtonrsls + CG/GAMG, "
-             "6.5-7.0 s at N = 1024 on this machine class. Times: best of 2 runs (ex9 cases), 3 (test1-mg), 1 (the "
+             "6.5-7.0 s at N = 1024 on this machine class. Times: best of 3 runs (ex9 cases, test1-mg), 1 (the "
              "other test1 cases); the finest level's CG + multigrid baseline timed right after each run.", "",
              "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(_fmt(r[c]) for c in cols) + " |" for r in rows]
