@@ -289,6 +289,13 @@ def test_galerkin_consistency_of_the_nested_levels(ex9_levels):
     off.data[off.nnz // 2] *= 1 + 1e-9
     assert not galerkin_consistent(P, fine.system.K, off)
     assert not galerkin_consistent(P, fine.system.K, 2.0 * coarse.system.K)
+    # two blocks 1e12 apart (tensions): the soft block is checked in its own scale
+    import scipy.sparse as sp
+
+    Pb = sp.block_diag([P, P], format="csr")
+    Kb = sp.block_diag([1e12 * fine.system.K, fine.system.K], format="csr")
+    assert galerkin_consistent(Pb, Kb, sp.block_diag([1e12 * coarse.system.K, coarse.system.K], format="csr"))
+    assert not galerkin_consistent(Pb, Kb, sp.block_diag([1e12 * coarse.system.K, off], format="csr"))
 
 
 @pytest.mark.parametrize("scene_name", ["ex9_obstacle", "test1"])
