@@ -198,8 +198,6 @@ def test_multigrid_inexact_converges_to_the_same_solution():
 def test_algebraic_multigrid_without_a_nested_hierarchy():
     """The netgen disk (no parent tables) at P1 and P2: CG + AMG above amg_min_size unknowns, the converged
     solution of the factorized steps."""
-    from ngcontact.newton import MultigridSolve
-
     sc = load_scene("disk")
     for order in (1, 2):
         opts = RunOptions(levels=2, order=order, newton="multigrid")

@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .linalg import SPDSolver
-from .sparse import abs_row_sums, row_entries, submatrix
+from .sparse import abs_row_sums, kept_entries, place_rows, row_entries, submatrix
 
 __all__ = ["Multigrid", "MultigridLevel", "AlgebraicMultigrid", "HierarchyCache", "SMOOTHERS", "p1_prolongation",
            "field_prolongation", "galerkin_consistent"]
@@ -84,8 +84,7 @@ def p1_prolongation(parents: np.ndarray, fine_interior: np.ndarray, coarse_inter
 def _truncated(P: sp.csr_matrix, rows) -> "tuple[sp.csr_matrix, np.ndarray]":
     """(P[rows][:, used], used): the rows ``rows`` (boolean mask or increasing indices) of P and its columns with a
     nonzero entry in them (the coarse unknowns whose truncated function survives).  One pass over P's entries:
-    every entry of a selected row is kept unless it is an explicit zero, so the kept rows' row pointer is the
-    running count of kept entries at the ends of those rows."""
+    every entry of a selected row is kept unless it is an explicit zero (:func:`~.sparse.kept_entries`)."""
     sel = np.asarray(rows)
     if sel.dtype != bool:
         mask = np.zeros(P.shape[0], dtype=bool)
@@ -93,16 +92,11 @@ def _truncated(P: sp.csr_matrix, rows) -> "tuple[sp.csr_matrix, np.ndarray]":
         sel = mask
     entries = np.repeat(sel, np.diff(P.indptr))
     entries &= P.data != 0
-    cols = P.indices[entries]
     hit = np.zeros(P.shape[1], dtype=bool)
-    hit[cols] = True
+    hit[P.indices[entries]] = True
     used = np.flatnonzero(hit)
-    itype = np.int32 if max(P.nnz, P.shape[1]) < np.iinfo(np.int32).max else np.int64
-    new_col = np.cumsum(hit, dtype=itype) - 1
-    count = np.zeros(len(entries) + 1, dtype=itype)
-    np.cumsum(entries, out=count[1:])
-    indptr = np.concatenate([np.zeros(1, dtype=itype), count[P.indptr[1:]][sel]])
-    return sp.csr_matrix((P.data[entries], new_col[cols], indptr), shape=(int(np.count_nonzero(sel)), len(used))), used
+    new_col = np.cumsum(hit) - 1
+    return kept_entries(P, entries, np.flatnonzero(sel), new_col[P.indices], len(used)), used
 
 
 def galerkin_consistent(P: sp.csr_matrix, K: sp.csr_matrix, Kc: sp.csr_matrix) -> bool:
@@ -157,10 +151,7 @@ def _merge_rows(n: int, idx1: np.ndarray, M1: sp.csr_matrix, idx2: np.ndarray, M
     np.cumsum(counts, out=indptr[1:])
     data, indices = np.empty(nnz), np.empty(nnz, dtype=itype)
     for idx, M in ((idx1, M1), (idx2, M2)):
-        shift = indptr[idx].astype(np.int64) - M.indptr[:-1]  # from the entry's place in M to its place here
-        pos = np.arange(M.nnz, dtype=np.int64) + np.repeat(shift, np.diff(M.indptr))
-        data[pos] = M.data
-        indices[pos] = M.indices
+        place_rows(data, indices, indptr[idx], M)
     return sp.csr_matrix((data, indices, indptr), shape=(n, M1.shape[1]))
 
 

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .linalg import SPDSolver, pcg
+from .multigrid import Multigrid
 from .sparse import row_entries, submatrix
 
 __all__ = ["FreeBoundaryRelaxation"]
@@ -132,8 +133,6 @@ class FreeBoundaryRelaxation:
     def _solve_free(self, A: sp.csr_matrix, rhs: np.ndarray, unknowns: np.ndarray, x0: np.ndarray, prolongations):
         """The solution of A x = rhs, A the block of K on the increasing ``unknowns`` (module constants)."""
         if prolongations and len(unknowns) >= BAND_MG_MIN:
-            from .multigrid import Multigrid
-
             keep = np.zeros(self.system.n, dtype=bool)
             keep[unknowns] = True
             res = pcg(A, rhs, Multigrid(A, prolongations, keep), x0, rtol=BAND_RTOL, maxiter=BAND_MAXITER)

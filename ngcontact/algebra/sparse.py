@@ -5,14 +5,15 @@
 copy of the rows).  The result's arrays are those of the two-step index, entry for entry (same order
 inside the rows), so every later product or sweep over it rounds the same way.  :func:`abs_row_sums` is
 ``abs(A).sum(axis=1)`` (the infinity norm, Gershgorin bounds) without the copy of the matrix;
-:func:`row_entries` the positions of some rows' entries (``A[rows].indices`` without the submatrix).
+:func:`row_entries` the positions of some rows' entries (``A[rows].indices`` without the submatrix);
+:func:`kept_entries` and :func:`place_rows` build CSR matrices from selected entries and from other matrices' rows.
 """
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["submatrix", "abs_row_sums", "row_entries"]
+__all__ = ["submatrix", "kept_entries", "place_rows", "abs_row_sums", "row_entries"]
 
 
 def _as_index(sel, n: int, what: str) -> np.ndarray:
@@ -41,12 +42,28 @@ def submatrix(A: sp.spmatrix, rows, cols) -> sp.csr_matrix:
     keep = np.repeat(row_in, np.diff(A.indptr))
     cj = new_col[A.indices]
     keep &= cj >= 0
-    # kept entries before each position: the rows that are not selected keep none, so the result's row pointer is
-    # the count at the ends of the selected rows
+    return kept_entries(A, keep, r, cj, len(c))
+
+
+def kept_entries(A: sp.csr_matrix, keep: np.ndarray, rows: np.ndarray, new_col: np.ndarray,
+                 ncols: int) -> sp.csr_matrix:
+    """The CSR matrix of the entries ``keep`` (a mask over A's entries, none outside the increasing ``rows``) in the
+    rows ``rows``, with the columns ``new_col`` (per entry).  The rows that are not selected keep no entry, so the
+    result's row pointer is the running count of kept entries at the ends of the selected rows."""
+    itype = np.int32 if max(A.nnz, ncols) < np.iinfo(np.int32).max else np.int64
     count = np.zeros(len(keep) + 1, dtype=itype)
     np.cumsum(keep, out=count[1:])
-    indptr = np.concatenate([np.zeros(1, dtype=itype), count[A.indptr[r + 1]]])
-    return sp.csr_matrix((A.data[keep], cj[keep], indptr), shape=(len(r), len(c)))
+    indptr = np.concatenate([np.zeros(1, dtype=itype), count[A.indptr[np.asarray(rows) + 1]]])
+    return sp.csr_matrix((A.data[keep], new_col[keep].astype(itype, copy=False), indptr), shape=(len(rows), ncols))
+
+
+def place_rows(data: np.ndarray, indices: np.ndarray, starts: np.ndarray, M: sp.csr_matrix) -> None:
+    """Write the entries of M into the arrays of another CSR matrix, those of M's row i from position starts[i] on
+    (the rows' other entries are written by the caller)."""
+    shift = starts.astype(np.int64) - M.indptr[:-1]  # from the entry's place in M to its place there
+    pos = np.arange(M.nnz, dtype=np.int64) + np.repeat(shift, np.diff(M.indptr))
+    data[pos] = M.data
+    indices[pos] = M.indices
 
 
 def abs_row_sums(A: sp.spmatrix) -> np.ndarray:

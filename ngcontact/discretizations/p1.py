@@ -21,6 +21,7 @@ from typing import Optional, Tuple
 import numpy as np
 import scipy.sparse as sp
 
+from ..algebra.sparse import place_rows
 
 __all__ = ["p1_tables", "p1_matrices", "symmetric_from_upper", "dirichlet_vertices", "RIGHT_ANGLE"]
 
@@ -114,11 +115,8 @@ def symmetric_from_upper(U: sp.csr_matrix, diag: np.ndarray) -> sp.csr_matrix:
     data = np.empty(int(indptr[-1]))
     indices = np.empty(int(indptr[-1]), dtype=itype)
     start = indptr[:-1]
-    for M, shift, n in ((L, start - L.indptr[:-1], nl), (U, start + nl + has_d - U.indptr[:-1], nu)):
-        pos = np.arange(M.nnz, dtype=itype)
-        pos += np.repeat(shift.astype(itype), n)
-        data[pos] = M.data
-        indices[pos] = M.indices
+    place_rows(data, indices, start, L)
+    place_rows(data, indices, start + nl + has_d, U)
     at = (start + nl)[has_d]
     data[at] = diag[has_d]
     indices[at] = np.flatnonzero(has_d)
