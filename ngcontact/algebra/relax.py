@@ -191,18 +191,20 @@ class FreeBoundaryRelaxation:
         in_band[lo[two]] = True
         U = np.flatnonzero(in_band)
         # the sweeps run on the band's unknowns only: x_U with the rest of x frozen
-        local = np.full(s.n, -1, dtype=np.int64)
-        local[U] = np.arange(len(U))
         KUU, c = self._frozen(U, x)
         xU = np.array(x, dtype=float)[U]
         dU = self.d[U]
-        pu, pl = local[up], local[lo]  # pl = pu on one-sided rows (lo_safe)
+        pu, pl = np.searchsorted(U, up), np.searchsorted(U, lo)  # places in U; pl = pu on one-sided rows (lo_safe)
         d_up, d_lo = self.d[up], self.d[lo]
         b = s.b[rows]
         w_up = np.where(two, 1.0 / (1.0 + d_up / d_lo), 0.0)  # the pair's shift of x_up per unit of gap
         hit = np.zeros(len(rows), dtype=bool)
         for _ in range(sweeps):
-            xU += omega * (c - KUU @ xU) / dU
+            t = KUU @ xU  # xU += omega * (c - KUU xU) / dU, in place
+            np.subtract(c, t, out=t)
+            t *= omega
+            t /= dU
+            xU += t
             g = np.where(two, xU[pu] - xU[pl], xU[pu]) - b
             hit = g < 0
             # the pair moves along (1/d_up, -1/d_lo) to g = b; an obstacle row to x_up = b
