@@ -205,12 +205,16 @@ class FreeBoundaryRelaxation:
             t *= omega
             t /= dU
             xU += t
-            g = np.where(two, xU[pu] - xU[pl], xU[pu]) - b
+            a = xU[pu]
+            g = np.where(two, a - xU[pl], a) - b
             hit = g < 0
-            # the pair moves along (1/d_up, -1/d_lo) to g = b; an obstacle row to x_up = b
-            xU[pu[hit]] = np.where(two[hit], xU[pu[hit]] - w_up[hit] * g[hit], b[hit])
-            t2 = hit & two
-            xU[pl[t2]] = xU[pu[t2]] - b[t2]
+            # the pair moves along (1/d_up, -1/d_lo) to g = b; an obstacle row to x_up = b (the rows' upper
+            # unknowns are distinct: the new values are those written)
+            h = np.flatnonzero(hit)
+            th = two[h]
+            new_up = np.where(th, a[h] - w_up[h] * g[h], b[h])
+            xU[pu[h]] = new_up
+            xU[pl[h[th]]] = new_up[th] - b[h[th]]
         r = KUU @ xU - c  # residual at U, mapped to the band rows
         x = np.array(x, dtype=float)
         x[U] = xU
