@@ -155,3 +155,21 @@ def test_nested_p1_prolongation_equals_the_point_search(name, monkeypatch):
         np.testing.assert_allclose(y_fast, y_search, atol=1e-13 * max(1.0, np.abs(y_search).max()))
     # a point that is no coarse vertex or edge midpoint: fall back to the search
     assert fem._nested_p1_values(coarse, pts[:1] + 1e-3 * coarse.problem.domain.h(1), zeros) is None
+
+
+def test_errors_need_no_multiplier_function(solve_one):
+    """errors() reads the fields only: for p >= 2 it leaves the nodal mass matrix of lam_h unfactorized, and its
+    energy error is the one of the fields' GridFunctions of gridfunctions()."""
+    from ngsolve import Integrate, InnerProduct, grad
+
+    problem = load_scene("test1").problem
+    disc, sol = solve_one(problem, level=1, order=2)
+    errs = disc.errors(sol.x, sol.y)
+    assert disc._mass_solver is None
+    gfs = disc.gridfunctions(sol.x, sol.y)  # lam_h included: factorizes the mass matrix
+    assert disc._mass_solver is not None
+    e2 = 0.0
+    for a, (name, mu) in enumerate(zip(problem.field_names, problem.mus)):
+        d = problem.exact.gradient(a + 1) - grad(gfs[name])
+        e2 += mu * Integrate(InnerProduct(d, d).Compile(), disc.mesh, order=2 * disc.order + disc.quad_bonus)
+    assert errs["err_energy"] == pytest.approx(np.sqrt(e2), rel=1e-13)  # threaded sums: last bits

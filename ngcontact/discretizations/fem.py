@@ -318,14 +318,19 @@ class FEMDiscretization(Discretization):
             self._mass = self.nodes.transform(scipy_csr(M))
         return self._mass
 
-    def nodal_fields(self, x, y) -> dict:
-        """Nodal values (all nodes, boundary included) of u_a and lam_h."""
+    def _field_values(self, x) -> dict:
+        """Nodal values (all nodes, boundary included) of the fields u_a."""
         ni = self.n_interior
         out = {}
         for a, name in enumerate(self.problem.field_names):
             X = self.lift[a].copy()
             X[self.interior] = x[a * ni:(a + 1) * ni]
             out[name] = X
+        return out
+
+    def nodal_fields(self, x, y) -> dict:
+        """Nodal values (all nodes, boundary included) of u_a and lam_h."""
+        out = self._field_values(x)
         rhs = np.zeros(self.nodes.ndof)
         rhs[self.interior] = y
         if self.order == 1:
@@ -343,21 +348,23 @@ class FEMDiscretization(Discretization):
 
     def gridfunctions(self, x, y) -> dict:
         """GridFunctions u1, u2 (or u), lam and the gap u1 - u2 (or u - psi)."""
-        out = {}
-        for name, X in self.nodal_fields(x, y).items():
-            gf = GridFunction(self.fes, name=name)
-            gf.vec.FV().NumPy()[:] = self.nodes.T @ X
-            out[name] = gf
+        out = {name: self._function(X, name) for name, X in self.nodal_fields(x, y).items()}
         out["gap"] = self.problem.gap([out[name] for name in self.problem.field_names])
         return out
+
+    def _function(self, X, name: str):
+        """The GridFunction of the nodal values X."""
+        gf = GridFunction(self.fes, name=name)
+        gf.vec.FV().NumPy()[:] = self.nodes.T @ X
+        return gf
 
     def errors(self, x, y) -> dict:
         """Energy error (sum_a mu_a ||grad(u_a - u_ah)||^2)^(1/2) and max nodal error."""
         ex = self.problem.exact
         if ex is None:
             return {}
-        gfs = self.gridfunctions(x, y)
-        nodal = self.nodal_fields(x, y)
+        nodal = self._field_values(x)  # the fields only: lam_h (a mass solve for p >= 2) is not needed here
+        gfs = {name: self._function(X, name) for name, X in nodal.items()}
         e2, emax = 0.0, 0.0
         order = 2 * self.order + self.quad_bonus
         for a, (name, mu) in enumerate(zip(self.problem.field_names, self.problem.mus)):
