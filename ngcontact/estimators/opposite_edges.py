@@ -54,6 +54,14 @@ def _pair_blocks(M: np.ndarray, pair: np.ndarray, cols: np.ndarray, nr: int, nc:
 
 
 
+def _hat_major(M: np.ndarray, shape: np.ndarray) -> np.ndarray:
+    """(3, ne, ...): the per-shape blocks M (ns, 3, ...) of every element, hat-major, in one gather per hat."""
+    out = np.empty((M.shape[1], len(shape)) + M.shape[2:])
+    for i in range(M.shape[1]):
+        np.take(M[:, i], shape, axis=0, out=out[i])
+    return out
+
+
 class OppositeEdges:
     """The elimination of the opposite edges for the condensed element matrices S_K of one mesh (see
     ``__init__``)."""
@@ -120,18 +128,22 @@ class OppositeEdges:
             S_OO_inv[fixed_O] = 0.0
         C = S_EO @ S_OO_inv                                                     # (ne or ns, 3, nE, nO)
         S_pair = S_EE - C @ S_OE if nO else S_EE
-        if shape is not None:  # per element (copies), then the Dirichlet opposite edges: m_O = 0, S' = S_EE
-            S_EE, S_OE, S_OO_inv, C, S_pair = (M[shape] for M in (S_EE, S_OE, S_OO_inv, C, S_pair))
-            S_pair[fixed_O] = S_EE[fixed_O]
-            C[fixed_O] = 0.0
-            S_OO_inv[fixed_O] = 0.0
+        # hat-major (3, ne, ...) for the right-hand sides (nf, 3, ne, nF3) of PatchSolver.solve
+        if shape is not None:  # per element, gathered from the shapes' blocks in that layout; then the Dirichlet
+            K, i = np.nonzero(fixed_O)  # opposite edges: m_O = 0, S' = S_EE
+            fixed_EE = S_EE[shape[K], i]
+            S_pair = S_pair[shape]
+            S_pair[K, i] = fixed_EE
+            self._Ct, self._S_OE_t, self._S_OO_inv_t = (_hat_major(M, shape) for M in (C, S_OE, S_OO_inv))
+            self._Ct[i, K] = 0.0
+            self._S_OO_inv_t[i, K] = 0.0
+        else:
+            self._Ct = C.transpose(1, 0, 2, 3).copy()
+            self._S_OE_t, self._S_OO_inv_t = S_OE.transpose(1, 0, 2, 3).copy(), S_OO_inv.transpose(1, 0, 2, 3).copy()
         self.E, self.O, self.fixed_O = E, O, fixed_O
         self.ne, self.nF3, self.nE, self.nO = ne, nF3, E.shape[2], nO
         self.S_pair = S_pair
-        # hat-major (3, ne, ...) for the right-hand sides (nf, 3, ne, nF3) of PatchSolver.solve
         self._Et, self._Ot = E.transpose(1, 0, 2).copy(), O.transpose(1, 0, 2).copy()
-        self._Ct = C.transpose(1, 0, 2, 3).copy()
-        self._S_OE_t, self._S_OO_inv_t = S_OE.transpose(1, 0, 2, 3).copy(), S_OO_inv.transpose(1, 0, 2, 3).copy()
         base = (np.arange(ne) * nF3)[:, None]
         self._flat_E = [(base + E[:, i]).ravel() for i in range(3)]
         self._flat_O = [(base + O[:, i]).ravel() for i in range(3)]
