@@ -639,3 +639,14 @@ def test_concentrated_multiplier_against_explicit_candidates():
             best = trial
     assert objective(best) < objective(lam)
     assert objective(lam_t) == pytest.approx(objective(best), rel=1e-12)
+
+
+def test_strip_study_table_reports_estimation_over_solve():
+    """The adaptive row of make strip-study carries the ratio estimation / Newton solve of the last levels."""
+    from ngcontact.studies.strip_layers import _table
+
+    adaptive = {2: {"levels": 24, "t_1e-5": 20.3, "t_estimate": 13.3, "t_solve": 4.8, "i_eff_last": [1.18, 1.15, 1.14],
+                    "est_over_solve": [2.5, 2.25, 2.0, 1.5]}}
+    text = _table({}, adaptive)
+    assert "| estimation / solve, last 4 levels |" in text
+    assert "| 2 | 24 | 20.3 | 13.3 | 4.8 | 1.180 1.150 1.140 | 2.50 2.25 2.00 1.50 |" in text
