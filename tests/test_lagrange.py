@@ -44,3 +44,40 @@ def test_nodal_stiffness_is_the_lagrange_stiffness(p):
     xy = nodes.coords
     on_bnd = (np.minimum.reduce([xy[:, 0], 1 - xy[:, 0], xy[:, 1], 1 - xy[:, 1]]) < 1e-12)
     assert np.array_equal(~free, on_bnd)
+
+
+@pytest.mark.parametrize("p", [1, 2, 3])
+@pytest.mark.parametrize("domain", [CrissCrossSquare(), UnitDisk(maxh=0.4), "lshape-refined"],
+                         ids=["square", "curved-disk", "lshape-refined"])
+def test_element_tables_are_those_of_the_elements(p, domain):
+    """The vectorized vertex table and the shared dof table agree with NGSolve's elements, element by element
+    (also on a curved and on a locally refined mesh), and the dof table is kept on the space and rebuilt after an
+    Update (the refined mesh)."""
+    from ngsolve import VOL
+
+    from ngcontact import LShape
+    from ngcontact.discretizations.base import element_dofs
+    from ngcontact.discretizations.lagrange import _element_tables
+
+    if domain == "lshape-refined":
+        mesh = LShape(maxh=0.5).mesh(0)
+        for _ in range(2):
+            for el in mesh.Elements(VOL):
+                mesh.SetRefinementFlag(el, el.nr % 3 == 0)
+            mesh.Refine()
+    else:
+        mesh = domain.mesh(1)
+    fes = H1(mesh, order=p)
+    dofs, verts = _element_tables(fes, mesh.ne, (p + 1) * (p + 2) // 2)
+    for el in fes.Elements(VOL):
+        assert list(dofs[el.nr]) == list(el.dofs)
+        assert list(verts[el.nr]) == [v.nr for v in el.vertices]
+    assert element_dofs(fes) is element_dofs(fes)
+    with pytest.raises(ValueError):
+        element_dofs(fes)[0, 0] = 0  # shared: read-only
+    if domain != "lshape-refined":
+        return
+    mesh.Refine()
+    fes.Update()
+    fresh = element_dofs(fes)
+    assert fresh.shape[0] == mesh.ne and all(list(fresh[el.nr]) == list(el.dofs) for el in fes.Elements(VOL))

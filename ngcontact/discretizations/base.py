@@ -16,7 +16,8 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import LinearForm, TaskManager
 
-__all__ = ["Discretization", "scipy_csr", "bit_mask", "bit_array", "assemble_load", "evaluate_at_points", "coordinate_only"]
+__all__ = ["Discretization", "scipy_csr", "bit_mask", "bit_array", "assemble_load", "evaluate_at_points", "coordinate_only",
+           "element_dofs"]
 
 
 class Discretization(ABC):
@@ -206,3 +207,25 @@ def evaluate_at_points(mesh, cf, pts: np.ndarray) -> np.ndarray:
             except Exception:
                 vals[i] = 0.0
         return vals
+
+
+def element_dofs(space) -> np.ndarray:
+    """(ne, n): the dof numbers of every volume element of ``space`` in the element's local order (the same number
+    n on each element), by one pass over the elements; kept on the space (the Lagrange nodes of FEM and the
+    estimators' element operators read the same table of the FE space).  A space whose number of dofs or mesh size
+    changed since (``Update`` after a refinement) gets its table again."""
+    from ngsolve import VOL, ElementId
+
+    ne = space.mesh.ne
+    hit = getattr(space, "_ngcontact_element_dofs", None)
+    if hit is not None and hit[0] == (space.ndof, ne):
+        return hit[1]
+    dofs = np.empty((ne, len(space.GetDofNrs(ElementId(VOL, 0))) if ne else 0), dtype=np.int64)
+    for el in space.Elements(VOL):
+        dofs[el.nr] = el.dofs
+    dofs.flags.writeable = False  # shared by its readers
+    try:
+        space._ngcontact_element_dofs = ((space.ndof, ne), dofs)
+    except AttributeError:  # a space type without attributes: not kept
+        pass
+    return dofs

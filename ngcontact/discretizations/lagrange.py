@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import BND, VOL, CoefficientFunction, ElementId, IntegrationRule, x, y
 
+from .base import element_dofs
 from .nodesets import lattice, reference_nodes
 
 __all__ = ["LagrangeNodes", "lattice", "meshpoints"]
@@ -250,17 +251,20 @@ def _mesh_point_proto(mesh) -> np.ndarray:
 
 
 def _element_tables(fes, ne: int, ndof_loc: int):
-    """(dofs, verts) per element.  P1: the vertex table of the netgen mesh (H1 order 1 numbers its
-    dofs by vertex), vectorized (a Python loop over the elements costs seconds at 1e5+ elements).
-    Higher orders: one Python loop over the elements."""
-    if fes.globalorder == 1 and fes.ndof == fes.mesh.nv:
-        verts = fes.mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
-        if len(verts) == ne:
-            return verts.copy(), verts
-    dofs = np.empty((ne, ndof_loc), dtype=np.int64)
+    """(dofs, verts) per element.  The vertex table of the netgen mesh, vectorized (a Python loop over the elements
+    costs seconds at 1e5+ elements).  P1: it is the dof table too (H1 numbers its vertex dofs by vertex).  Higher
+    orders: the dof table by one pass over the elements (:func:`~.base.element_dofs`, shared with the estimators),
+    and the vertex table is taken where its columns are the elements' vertex dofs (else read element by element)."""
+    ng = fes.mesh.ngmesh.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1
+    if fes.globalorder == 1 and fes.ndof == fes.mesh.nv and len(ng) == ne:
+        return ng.copy(), ng
+    dofs = element_dofs(fes)
+    if dofs.shape[1] != ndof_loc:  # pragma: no cover - guards non-standard spaces
+        raise ValueError(f"H1 space of order {fes.globalorder} has {dofs.shape[1]} dofs per element, {ndof_loc} expected")
+    if len(ng) == ne and np.array_equal(dofs[:, :3], ng):
+        return dofs, ng
     verts = np.empty((ne, 3), dtype=np.int64)
     for el in fes.Elements(VOL):
-        dofs[el.nr] = el.dofs
         verts[el.nr] = [v.nr for v in el.vertices]
     return dofs, verts
 

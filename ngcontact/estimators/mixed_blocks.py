@@ -42,6 +42,7 @@ import numpy as np
 from ngsolve import (H1, HDiv, L2, BilinearForm, CoefficientFunction, ElementId, FacetFESpace, Mesh, VOL, div, dx,
                      grad, specialcf, x, y)
 
+from ..discretizations.base import element_dofs
 from ..discretizations.p1 import p1_tables
 
 __all__ = ["AffineTriangles", "ElementBlocks", "shapes", "mixed_element_blocks", "flux_operators",
@@ -202,14 +203,6 @@ def _class_groups(cls: np.ndarray):
             yield c, sel
 
 
-def _element_dofs(space, ne: int) -> np.ndarray:
-    """(ne, n): the dof numbers of every element (the same number n on each), by one pass over the elements."""
-    dofs = np.empty((ne, len(space.GetDofNrs(ElementId(VOL, 0))) if ne else 0), dtype=np.int64)
-    for el in space.Elements(VOL):
-        dofs[el.nr] = el.dofs
-    return dofs
-
-
 @dataclass(frozen=True, eq=False)
 class ElementBlocks:
     """The element blocks of the patch form (:func:`mixed_element_blocks`), stored once per shape: block s of
@@ -296,7 +289,7 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[
     nF3 = C.shape[1] - nI
     if V.ndof != ne * nV or Q.ndof != ne * nQ:
         return None
-    dofs = _element_dofs(X, ne)
+    dofs = element_dofs(X)
     expect = np.concatenate([(np.arange(ne) * nV)[:, None] + np.arange(nV),
                              V.ndof + (np.arange(ne) * nQ)[:, None] + np.arange(nQ)], axis=1)
     if dofs.shape[1] != nI + nF3 or not np.array_equal(dofs[:, :nI], expect):
@@ -340,7 +333,7 @@ def flux_operators(tri: Optional[AffineTriangles], Y, q: int, space, hessian: bo
         return None
     # P1: the dofs of K are its vertices in the local order (GetDofNrs element by element otherwise)
     p1 = p == 1 and tri.vertices is not None and space.ndof == space.mesh.nv
-    udofs = tri.vertices.astype(np.int64) if p1 else _element_dofs(space, ne)
+    udofs = tri.vertices.astype(np.int64) if p1 else element_dofs(space)
     if udofs.shape[1] != nU:
         return None
     B, det = tri.B, tri.det
