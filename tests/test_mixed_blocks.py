@@ -117,3 +117,25 @@ def test_shape_blocks_apply_like_per_element_products():
     M1 = rng.standard_normal((len(shape), 4, 3))
     single = ElementBlocks(A_II=np.zeros((len(shape), 1, 1)), A_VF=None, fdofs=None)
     assert np.array_equal(single.apply(M1, X), np.matmul(M1, X))
+
+
+@pytest.mark.parametrize("q,p", [(1, 2), (3, 3), (4, 4)])
+def test_product_dofs_from_the_edges_of_the_fe_space(q, p, monkeypatch):
+    """The dofs of X = broken RT x P_q x facet P_q built from the FE space's edge numbers equal NGSolve's, element by
+    element, without a pass over X's elements; P1 spaces have no edge numbers, and a wrong edge table is caught by
+    the sample check (the table is then read element by element)."""
+    import ngcontact.estimators.mixed_blocks as MB
+    from ngcontact.discretizations.base import element_dofs, element_edges
+
+    assert element_edges(H1(Mesh(unit_square.GenerateMesh(maxh=0.3)), order=1)) is None
+    for mesh in _meshes():
+        _, X, _, _ = _mixed_patch_problem(mesh, q, 0.0)
+        nI = X.components[0].ndof // mesh.ne + X.components[1].ndof // mesh.ne
+        truth = np.array([list(el.dofs) for el in X.Elements()])
+        edges = element_edges(H1(mesh, order=p))
+        with monkeypatch.context() as m:
+            m.setattr(MB, "element_dofs", lambda space: pytest.fail("read element by element"))
+            np.testing.assert_array_equal(MB._product_dofs(X, mesh.ne, nI, edges), truth)
+        wrong = edges.copy()
+        wrong[-1] = wrong[-1, [1, 2, 0]]
+        np.testing.assert_array_equal(MB._product_dofs(X, mesh.ne, nI, wrong), element_dofs(X))

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from ngsolve import LinearForm, TaskManager
 
 __all__ = ["Discretization", "scipy_csr", "bit_mask", "bit_array", "assemble_load", "evaluate_at_points", "coordinate_only",
-           "element_dofs"]
+           "element_dofs", "element_edges"]
 
 
 class Discretization(ABC):
@@ -229,3 +229,25 @@ def element_dofs(space) -> np.ndarray:
     except AttributeError:  # a space type without attributes: not kept
         pass
     return dofs
+
+
+def element_edges(space):
+    """(ne, 3): the rank of every element's edges, in its local edge order, among the edges of the mesh that carry
+    dofs (NGSolve's edge numbers; after a local refinement the parents' edges keep numbers but carry none), read off
+    the element dof table of ``space`` when it is an H1 space of one order p >= 2 (the nv vertex dofs, then p - 1
+    dofs per edge, edge by edge); None otherwise (P1 holds no edge dofs).  Callers check what they build from it."""
+    p = int(getattr(space, "globalorder", 0))
+    mesh = space.mesh
+    if type(space).__name__ != "H1" or p < 2:
+        return None
+    n_edge_dofs = space.ndof - mesh.nv - mesh.ne * (p - 1) * (p - 2) // 2
+    if n_edge_dofs < 0 or n_edge_dofs % (p - 1):
+        return None
+    dofs = element_dofs(space)
+    if dofs.shape[1] != (p + 1) * (p + 2) // 2:
+        return None
+    first = dofs[:, 3:3 + 3 * (p - 1):p - 1] - mesh.nv
+    edges, rest = np.divmod(first, p - 1)
+    if rest.any() or (len(edges) and (edges.min() < 0 or edges.max() >= n_edge_dofs // (p - 1))):
+        return None
+    return edges

@@ -56,6 +56,7 @@ from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv
                      Trace, div, dx, grad, specialcf)
 from ngsolve.comp import PatchwiseSolve
 
+from ..discretizations.base import element_edges
 from ..domains import DIRICHLET
 from .boundary import boundary_nodal_values, boundary_vertex_values, residual_multiplier
 from .moments import data_rules, vertex_function_values, vertex_moment_term, vertex_rule
@@ -178,7 +179,7 @@ def patch_solver(dv: DiscretizationView, q: int) -> PatchSolver:
         _, X, bf, _ = _mixed_patch_problem(dv.mesh, q, 0.0)  # the eps -> 0 limit, exactly (.patches)
         # straight triangles: the element blocks from reference matrices, not from an assembly of the form
         tri = None if dv.curved else AffineTriangles.of(dv.mesh)
-        c[key] = PatchSolver(dv.mesh, X, bf, dv.element_vertices(), blocks=mixed_element_blocks(tri, X, q),
+        c[key] = PatchSolver(dv.mesh, X, bf, dv.element_vertices(), blocks=mixed_element_blocks(tri, X, q, edges=element_edges(dv.fes)),
                              affine=tri)
     if c.get(REPEATED):  # the estimators of a Newton loop (view.expect_repeated_evaluations)
         c[key].expect_repeats()

@@ -274,12 +274,33 @@ def shapes(cls: np.ndarray, coef: np.ndarray):
     return rep, index.ravel()
 
 
-def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[ElementBlocks]:
+def _product_dofs(X, ne: int, nI: int, edges) -> np.ndarray:
+    """(ne, nI + nF3): the dofs of every element of X = V x Q x F (:func:`mixed_element_blocks`): V and Q numbered
+    element by element, F = facet P_q with q + 1 dofs per edge, edge by edge, so that with the ranks of the elements'
+    edges ``edges`` (:func:`~ngcontact.discretizations.base.element_edges`) no pass over the elements is needed;
+    checked against NGSolve's dofs of a sample of elements (the whole table by one pass over the elements without
+    ``edges`` or when the sample disagrees)."""
+    V, Q, F = X.components
+    q1 = int(F.globalorder) + 1
+    if edges is None or len(edges) != ne or not ne or F.ndof % q1 or edges.max() >= F.ndof // q1:
+        return element_dofs(X)
+    nV, nQ = V.ndof // ne, Q.ndof // ne
+    K = np.arange(ne)[:, None]
+    facet = V.ndof + Q.ndof + (edges[:, :, None] * q1 + np.arange(q1)).reshape(ne, 3 * q1)
+    dofs = np.concatenate([K * nV + np.arange(nV), V.ndof + K * nQ + np.arange(nQ), facet], axis=1)
+    sample = np.unique(np.linspace(0, ne - 1, min(ne, 33)).astype(np.int64))
+    if dofs.shape[1] != nI + 3 * q1 or any(list(X.GetDofNrs(ElementId(VOL, int(e)))) != list(dofs[e]) for e in sample):
+        return element_dofs(X)
+    return dofs
+
+
+def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int, edges=None) -> Optional[ElementBlocks]:
     """The :class:`ElementBlocks` (A_II (nI x nI), A_VF (nV x nF3) and the facet dofs (nF3) in the numbering of
     ``X``, one block per :func:`shapes` class) of the form of the module docstring, eps = 0, for ``X`` = broken
     RT_q x P_q x facet P_q (the space of :func:`.flux._mixed_patch_problem`) on the triangles ``tri``, or None
     (``tri`` None, another dof layout).  The RT and P_q rows are in the order of the dof numbers (those of K are
-    consecutive), the facet columns in the local order of K."""
+    consecutive), the facet columns in the local order of K.  ``edges``: the elements' edge numbers, if known
+    (:func:`_product_dofs`)."""
     if tri is None:
         return None
     R, C, (nV, nQ) = reference_blocks(q)
@@ -289,7 +310,7 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int) -> Optional[
     nF3 = C.shape[1] - nI
     if V.ndof != ne * nV or Q.ndof != ne * nQ:
         return None
-    dofs = element_dofs(X)
+    dofs = _product_dofs(X, ne, nI, edges)
     expect = np.concatenate([(np.arange(ne) * nV)[:, None] + np.arange(nV),
                              V.ndof + (np.arange(ne) * nQ)[:, None] + np.arange(nQ)], axis=1)
     if dofs.shape[1] != nI + nF3 or not np.array_equal(dofs[:, :nI], expect):
