@@ -16,8 +16,8 @@ import numpy as np
 import scipy.sparse as sp
 from ngsolve import LinearForm, TaskManager
 
-__all__ = ["Discretization", "scipy_csr", "bit_mask", "bit_array", "assemble_load", "evaluate_at_points", "coordinate_only",
-           "element_dofs", "element_edges"]
+__all__ = ["Discretization", "scipy_csr", "bit_mask", "bit_array", "assemble_load", "evaluate_at_points",
+           "coordinate_only", "element_dofs", "element_edges"]
 
 
 class Discretization(ABC):

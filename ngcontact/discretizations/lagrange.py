@@ -260,7 +260,8 @@ def _element_tables(fes, ne: int, ndof_loc: int):
         return ng.copy(), ng
     dofs = element_dofs(fes)
     if dofs.shape[1] != ndof_loc:  # pragma: no cover - guards non-standard spaces
-        raise ValueError(f"H1 space of order {fes.globalorder} has {dofs.shape[1]} dofs per element, {ndof_loc} expected")
+        raise ValueError(f"H1 space of order {fes.globalorder} has {dofs.shape[1]} dofs per element, "
+                         f"{ndof_loc} expected")
     if len(ng) == ne and np.array_equal(dofs[:, :3], ng):
         return dofs, ng
     verts = np.empty((ne, 3), dtype=np.int64)

@@ -179,8 +179,8 @@ def patch_solver(dv: DiscretizationView, q: int) -> PatchSolver:
         _, X, bf, _ = _mixed_patch_problem(dv.mesh, q, 0.0)  # the eps -> 0 limit, exactly (.patches)
         # straight triangles: the element blocks from reference matrices, not from an assembly of the form
         tri = None if dv.curved else AffineTriangles.of(dv.mesh)
-        c[key] = PatchSolver(dv.mesh, X, bf, dv.element_vertices(), blocks=mixed_element_blocks(tri, X, q, edges=element_edges(dv.fes)),
-                             affine=tri)
+        blocks = mixed_element_blocks(tri, X, q, edges=element_edges(dv.fes))
+        c[key] = PatchSolver(dv.mesh, X, bf, dv.element_vertices(), blocks=blocks, affine=tri)
     if c.get(REPEATED):  # the estimators of a Newton loop (view.expect_repeated_evaluations)
         c[key].expect_repeats()
     return c[key]
