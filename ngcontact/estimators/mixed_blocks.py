@@ -299,8 +299,8 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int, edges=None) 
     ``X``, one block per :func:`shapes` class) of the form of the module docstring, eps = 0, for ``X`` = broken
     RT_q x P_q x facet P_q (the space of :func:`.flux._mixed_patch_problem`) on the triangles ``tri``, or None
     (``tri`` None, another dof layout).  The RT and P_q rows are in the order of the dof numbers (those of K are
-    consecutive), the facet columns in the local order of K.  ``edges``: the elements' edge numbers, if known
-    (:func:`_product_dofs`)."""
+    consecutive), the facet columns in the local order of K.  ``edges``: the ranks of the elements' edges, if known
+    (:func:`~ngcontact.discretizations.base.element_edges`; they save the pass over the elements, :func:`_product_dofs`)."""
     if tri is None:
         return None
     R, C, (nV, nQ) = reference_blocks(q)
