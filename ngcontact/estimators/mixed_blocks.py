@@ -300,7 +300,7 @@ def mixed_element_blocks(tri: Optional[AffineTriangles], X, q: int, edges=None) 
     RT_q x P_q x facet P_q (the space of :func:`.flux._mixed_patch_problem`) on the triangles ``tri``, or None
     (``tri`` None, another dof layout).  The RT and P_q rows are in the order of the dof numbers (those of K are
     consecutive), the facet columns in the local order of K.  ``edges``: the ranks of the elements' edges, if known
-    (:func:`~ngcontact.discretizations.base.element_edges`; they save the pass over the elements, :func:`_product_dofs`)."""
+    (:func:`~ngcontact.discretizations.base.element_edges`: no pass over the elements, :func:`_product_dofs`)."""
     if tri is None:
         return None
     R, C, (nV, nQ) = reference_blocks(q)
