@@ -2,6 +2,8 @@
 multigrid Newton steps do not hold two copies of the reduced matrix, structured domains do not keep the
 arrays of a level while it is in use."""
 import gc
+import subprocess
+import sys
 import weakref
 
 import numpy as np
@@ -130,3 +132,22 @@ def test_box_meshes_without_a_face_table_give_the_same_spaces_forms_and_refineme
     for (n0, f0, a0), (n1, f1, a1) in zip(_forms(m0), _forms(m1)):
         assert (n0, f0) == (n1, f1) and np.array_equal(a0, a1)
 
+
+
+def test_a_finished_nested_run_is_freed_without_a_garbage_collection():
+    """The nested ex9 run (structured levels located on the coarsest mesh by matplotlib's trifinder, imported on
+    first use) leaves nothing of its levels to the cyclic garbage collector: dropping the result frees the
+    discretization at once.  A fresh interpreter, so that the first import happens during the run."""
+    code = (
+        "import gc, weakref\n"
+        "gc.disable()\n"
+        "from ngcontact.drivers import RunOptions, run_scene\n"
+        "from ngcontact.scenes import load_scene\n"
+        "res = run_scene(load_scene('ex9_obstacle'), RunOptions(levels=3))\n"
+        "assert res.rows[-1]['newton_converged']\n"
+        "ref = weakref.ref(res.discretization)\n"
+        "res = None\n"
+        "print('ALIVE' if ref() is not None else 'FREED')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "FREED"
