@@ -454,6 +454,42 @@ def test_dirichlet_strip_is_two_layers_for_p_at_least_2(monkeypatch):
     assert est.eta >= est.err_energy and abs(est.eta / wide.eta - 1.0) <= 0.01
 
 
+def test_dirichlet_strip_follows_the_part_of_the_boundary_with_a_trace_to_lift(monkeypatch):
+    """The strip of the lifting grows from the boundary elements where the trace Pi g - u_h is above round-off of g:
+    L-shape P3 with the re-entrant corner refined 12 times -- g vanishes on the corner's edges except for the P3
+    interpolation error of phi (O(h^4), below 1e-13 |g| on the smallest edges) -- gives a smaller strip than the
+    whole Dirichlet boundary's, w_h vanishes off it, and eta_bc, eps_w agree with the whole strip's to 1e-6."""
+    from ngcontact.estimators import dirichlet as E
+    from ngcontact.discretizations.base import bit_mask
+    from ngcontact.domains import DIRICHLET
+    from ngsolve import H1
+
+    scene = load_scene("lshape")
+    mesh = scene.problem.domain.mesh(0)
+    for _ in range(12):
+        for el in mesh.Elements():
+            mesh.SetRefinementFlag(el, any(np.hypot(*mesh[v].point) < 1e-12 for v in el.vertices))
+        mesh.Refine()
+    disc = FEMDiscretization(scene.problem, mesh, order=3)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(scene.initial_guess), NewtonOptions())
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    strips = []
+    plain = E.boundary_strip
+    monkeypatch.setattr(E, "boundary_strip", lambda dv, layers, seed=None: strips.append(plain(dv, layers, seed))
+                        or strips[-1])
+    ws, bc, eps, _ = E.dirichlet_correction(sv.disc, sv.fields, 5, 5)
+    seeded, whole = strips[-1][0], plain(sv.disc, 2)[0]
+    assert seeded.sum() < whole.sum() and not (seeded & ~whole).any()
+    for w in ws:
+        w_off = Integrate(w ** 2 * dx, mesh, element_wise=True).NumPy()[~seeded]
+        assert np.abs(w_off).max() == 0.0
+    dirichlet = ~bit_mask(H1(mesh, order=1, dirichlet=DIRICHLET).FreeDofs())[:mesh.nv]
+    monkeypatch.setattr(E, "trace_vertices", lambda V, dofs, nv: dirichlet)
+    _, bc_whole, eps_whole, _ = E.dirichlet_correction(sv.disc, sv.fields, 5, 5)
+    assert strips[-1][0].sum() == whole.sum()
+    assert abs(bc / bc_whole - 1) <= 1e-6 and abs(eps / eps_whole - 1) <= 1e-6 and bc > 0 and eps > 0
+
+
 def test_contact_fit_reweighting_removes_negative_lobes(solved_scene):
     """L-shape P3 (continuous free boundary): the reweighted contact fit of lam^ has no negative part left
     (eta_nonc,2 at round-off) and a smaller estimate than the plain fit (measured I_eff 1.464 -> 1.387)."""

@@ -3,10 +3,12 @@ r"""Correction of non-polynomial Dirichlet data: the lifting w_h, eta_bc and eps
 u_h interpolates g, so u - u_h is not in H^1_0 for non-polynomial g (test 1, test 2), and without
 a correction test 1 with p = 2 gives I_eff < 1.  w_h in P_{p+2} has the boundary trace Pi g - u_h
 (NGSolve's boundary projection of g), so u~_h = u_h + w_h = g up to O(h^{p+3}); it is discrete
-harmonic in the strip of the elements within :func:`strip_layers` vertex layers of the Dirichlet
-boundary and zero beyond ((grad w_h, grad v) = 0 for v in P_{p+2} vanishing outside the strip and
-on the boundary): any w_h with that trace is admissible, and the strip keeps its two sparse
-Cholesky factorizations small.  For P1 the trace error Pi g - I_1 g is one-signed on every edge and
+harmonic in the strip of the elements within :func:`strip_layers` vertex layers of the boundary
+elements where that trace is not zero and zero beyond ((grad w_h, grad v) = 0 for v in P_{p+2} vanishing
+outside the strip and on the boundary): any w_h with that trace is admissible, and the strip keeps its two
+sparse Cholesky factorizations small.  Trace values below 1e-13 max |Pi g| are round-off and taken as zero
+(as a whole lifting below it is left out): on adaptive meshes the smallest boundary edges, at a re-entrant
+corner, then leave the strip.  For P1 the trace error Pi g - I_1 g is one-signed on every edge and
 its lifting decays slowly, hence ``STRIP_LAYERS`` layers (``tests/test_estimators.py::
 test_dirichlet_lifting_in_a_boundary_strip``); for p >= 2 it oscillates along the edges and its lifting
 decays within a layer or two: ``STRIP_LAYERS_HIGH`` layers (``python -m ngcontact.studies.strip_layers``,
@@ -36,7 +38,7 @@ from ..domains import DIRICHLET
 from .view import DiscretizationView
 
 __all__ = ["STRIP_LAYERS", "STRIP_LAYERS_HIGH", "strip_layers", "boundary_strip", "dirichlet_correction",
-           "dirichlet_lifting"]
+           "dirichlet_lifting", "trace_vertices"]
 
 #: element layers along the Dirichlet boundary carrying the Dirichlet-data correction (module doc)
 STRIP_LAYERS = 8
@@ -49,13 +51,16 @@ def strip_layers(p: int) -> int:
     return STRIP_LAYERS if p <= 1 else STRIP_LAYERS_HIGH
 
 
-def boundary_strip(dv: DiscretizationView, layers: int):
-    """(strip, halo) element masks: the elements within ``layers`` vertex-neighbour layers of the
-    Dirichlet boundary, and the next layer (``halo`` empty when the strip is the whole mesh)."""
+def boundary_strip(dv: DiscretizationView, layers: int, seed: Optional[np.ndarray] = None):
+    """(strip, halo) element masks: the elements within ``layers`` vertex-neighbour layers of the vertices ``seed``
+    (a vertex mask; default: those of the Dirichlet boundary), and the next layer (``halo`` empty when the strip is
+    the whole mesh)."""
     mesh = dv.mesh
     ev = dv.element_vertices()
-    V1 = H1(mesh, order=1, dirichlet=DIRICHLET)
-    mark = ~bit_mask(V1.FreeDofs())[:mesh.nv]   # Dirichlet boundary vertices
+    if seed is None:
+        V1 = H1(mesh, order=1, dirichlet=DIRICHLET)
+        seed = ~bit_mask(V1.FreeDofs())[:mesh.nv]   # Dirichlet boundary vertices
+    mark = np.array(seed, dtype=bool)
     strip = np.zeros(mesh.ne, dtype=bool)
     for _ in range(max(int(layers), 1)):
         grown = mark[ev].any(axis=1)
@@ -66,6 +71,17 @@ def boundary_strip(dv: DiscretizationView, layers: int):
         mark[ev[strip].ravel()] = True
     halo = mark[ev].any(axis=1) & ~strip
     return strip, halo
+
+
+def trace_vertices(V, dofs: np.ndarray, nv: int) -> np.ndarray:
+    """Vertex mask: the vertices of the boundary elements of ``V`` that hold one of the Dirichlet dofs ``dofs``
+    (a dof mask: where the trace to lift is not zero)."""
+    dofs = dofs & ~bit_mask(V.FreeDofs())
+    seed = np.zeros(nv, dtype=bool)
+    for el in V.Elements(BND):
+        if dofs[list(el.dofs)].any():
+            seed[[v.nr for v in el.vertices]] = True
+    return seed
 
 
 def _element_dofs(space, elements) -> np.ndarray:
@@ -106,17 +122,25 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
     mesh = dv.mesh
     V = H1(mesh, order=k, dirichlet=DIRICHLET)
     ws = []
+    trace = np.zeros(V.ndof, dtype=bool)  # dofs where a trace to lift is above round-off (of g's values)
     for fd in fields:
         gg, gu = GridFunction(V), GridFunction(V)
         gg.Set(fd.g, BND)
         gu.Set(fd.u, BND)
         w = GridFunction(V, name=f"w_{fd.name}")
         w.vec.data = gg.vec - gu.vec
-        scale = max(float(np.abs(gg.vec.FV().NumPy()).max()), 1.0)
-        ws.append(w if float(np.abs(w.vec.FV().NumPy()).max()) > 1e-13 * scale else None)
+        g_max = float(np.abs(gg.vec.FV().NumPy()).max())
+        ws.append(w if float(np.abs(w.vec.FV().NumPy()).max()) > 1e-13 * g_max else None)  # in the units of g
+        if ws[-1] is not None:
+            wv = w.vec.FV().NumPy()
+            above = np.abs(wv) > 1e-13 * g_max
+            wv[~above] = 0.0  # round-off of a zero trace: w_h = 0 there, off the strip
+            trace |= above
     if all(w is None for w in ws):
         return ws, 0.0, 0.0, None
-    strip, halo = boundary_strip(dv, strip_layers(dv.order) if layers is None else layers)
+    # the strip along the part of the boundary where the trace to lift is not zero (elsewhere w_h = 0 satisfies it)
+    strip, halo = boundary_strip(dv, strip_layers(dv.order) if layers is None else layers,
+                                 seed=trace_vertices(V, trace, mesh.nv))
     inner = halo.any()
     on_strip = bit_array(strip)
     dxs = dx(definedonelements=on_strip)
