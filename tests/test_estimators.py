@@ -490,6 +490,26 @@ def test_dirichlet_strip_follows_the_part_of_the_boundary_with_a_trace_to_lift(m
     assert abs(bc / bc_whole - 1) <= 1e-6 and abs(eps / eps_whole - 1) <= 1e-6 and bc > 0 and eps > 0
 
 
+def test_dirichlet_correction_scales_with_the_data():
+    """The lifting's 'nothing to lift' threshold is in the units of g: test 1 (P1) with data x 1e-50 gets eta_bc and
+    eps_w x 1e-50 and the baseline's I_eff (with a threshold fixed at 1e-13 the lifting was dropped there)."""
+    from ngcontact.estimators import dirichlet as E
+    from ngcontact.problems.manufactured import scale_problem
+
+    scene = load_scene("test1")
+    out = []
+    for scale in (1.0, 1e-50):
+        problem = scale_problem(scene.problem, data=scale)
+        disc = FEMDiscretization(problem, problem.domain.mesh(1), order=1)
+        sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
+        sv = SolutionView.of(disc, sol.x, sol.y)
+        _, bc, eps, _ = E.dirichlet_correction(sv.disc, sv.fields, 3, 3)
+        out.append((bc / scale, eps / scale, estimate(disc, sol.x, sol.y).i_eff))
+    (bc1, eps1, i1), (bc2, eps2, i2) = out
+    assert bc1 > 0 and eps1 > 0
+    assert abs(bc2 / bc1 - 1) <= 1e-8 and abs(eps2 / eps1 - 1) <= 1e-8 and abs(i2 / i1 - 1) <= 1e-8
+
+
 def test_contact_fit_reweighting_removes_negative_lobes(solved_scene):
     """L-shape P3 (continuous free boundary): the reweighted contact fit of lam^ has no negative part left
     (eta_nonc,2 at round-off) and a smaller estimate than the plain fit (measured I_eff 1.464 -> 1.387)."""
