@@ -7,6 +7,7 @@ import sys
 import weakref
 
 import numpy as np
+import pytest
 
 from ngcontact.algebra.cfunctions import get_cfunction
 from ngcontact.algebra.sparse import submatrix
@@ -134,20 +135,31 @@ def test_box_meshes_without_a_face_table_give_the_same_spaces_forms_and_refineme
 
 
 
-def test_a_finished_nested_run_is_freed_without_a_garbage_collection():
-    """The nested ex9 run (structured levels located on the coarsest mesh by matplotlib's trifinder, imported on
-    first use) leaves nothing of its levels to the cyclic garbage collector: dropping the result frees the
-    discretization at once.  A fresh interpreter, so that the first import happens during the run."""
+@pytest.mark.parametrize("scene, options", [("ex9_obstacle", "levels=3"),
+                                            ("lshape", "order=2, adaptive=True, max_ndof=2000")])
+def test_a_finished_run_is_freed_without_a_garbage_collection(scene, options):
+    """Nested ex9 (structured levels located on the coarsest mesh) and adaptive L-shape P2 (the prolongation locates
+    the new nodes in the old mesh) both search meshes with matplotlib's trifinder, imported on first use: the runs
+    leave nothing of their levels to the cyclic garbage collector -- every level but the last is freed when the
+    next one is solved, and dropping the result frees the last.  A fresh interpreter, so that the first import
+    happens during the run."""
     code = (
         "import gc, weakref\n"
         "gc.disable()\n"
+        "import ngcontact.drivers.level as L, ngcontact.drivers.adaptive as A, ngcontact.drivers.uniform as U\n"
         "from ngcontact.drivers import RunOptions, run_scene\n"
         "from ngcontact.scenes import load_scene\n"
-        "res = run_scene(load_scene('ex9_obstacle'), RunOptions(levels=3))\n"
-        "assert res.rows[-1]['newton_converged']\n"
-        "ref = weakref.ref(res.discretization)\n"
+        "refs, solve = [], L.solve_level\n"
+        "def tracked(*a, **k):\n"
+        "    out = solve(*a, **k)\n"
+        "    refs.append(weakref.ref(out.disc))\n"
+        "    return out\n"
+        "A.solve_level = U.solve_level = tracked\n"
+        f"res = run_scene(load_scene({scene!r}), RunOptions({options}))\n"
+        "assert len(refs) >= 3 and res.rows[-1]['newton_converged']\n"
+        "print('ALIVE', sum(r() is not None for r in refs))\n"
         "res = None\n"
-        "print('ALIVE' if ref() is not None else 'FREED')\n")
+        "print('ALIVE', sum(r() is not None for r in refs))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip().splitlines()[-1] == "FREED"
+    assert [l for l in out.stdout.splitlines() if l.startswith("ALIVE")] == ["ALIVE 1", "ALIVE 0"]

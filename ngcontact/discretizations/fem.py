@@ -35,6 +35,7 @@ from ..algebra.multigrid import field_prolongation, p1_prolongation
 from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
 from ..domains import DIRICHLET, ArrayMesh
+from ..domains.base import matplotlib_tri
 from ..problems.base import check_data_on_points
 from .base import Discretization, bit_mask, coordinate_only, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
@@ -460,8 +461,7 @@ def _locate(mesh, pts):
     triangle has vertices (1,0), (0,1), (0,0), so the local coordinates are
     the first two barycentric coordinates.
     """
-    import matplotlib.tri as mtri
-
+    mtri = matplotlib_tri()
     ng = mesh.ngmesh
     P = np.asarray(ng.Coordinates())[:, :2]
     T = ng.Elements2D().NumPy()["nodes"][:, :3].astype(np.int64) - 1

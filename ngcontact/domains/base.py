@@ -2,15 +2,17 @@
 mesh measures."""
 from __future__ import annotations
 
+import gc
 import math
 import numbers
+import sys
 from typing import Any, Iterator
 
 import netgen.meshing as ngm
 import numpy as np
 import ngsolve
 
-__all__ = ["DIRICHLET", "INTERFACE", "Domain", "check_triangular", "mesh_size"]
+__all__ = ["DIRICHLET", "INTERFACE", "Domain", "check_triangular", "matplotlib_tri", "mesh_size"]
 
 _SIDES = ("bottom", "right", "top", "left")
 
@@ -18,6 +20,20 @@ _SIDES = ("bottom", "right", "top", "left")
 #: interfaces (std::regex, full match)
 DIRICHLET = "(?!interface$).*"
 INTERFACE = "interface"
+
+
+def matplotlib_tri():
+    """matplotlib.tri (point location in triangulations), imported on first use.  That import leaves cyclic
+    garbage: parser exceptions whose tracebacks reach, through the frames' ``f_back``, the frames of the caller -- a
+    whole run when a mesh is searched during it -- so that everything the run's functions held when they returned
+    (meshes and systems of every level) would stay in memory until the next full collection.  One collection right
+    after the import frees that garbage while those frames are still executing (nothing of the run is collected)."""
+    if "matplotlib.tri" in sys.modules:
+        return sys.modules["matplotlib.tri"]
+    import matplotlib.tri as mtri
+
+    gc.collect()
+    return mtri
 
 
 def mesh_size(mesh) -> float:

@@ -2,8 +2,6 @@
 :class:`ArrayMesh` levels whose NGSolve mesh is built on first use."""
 from __future__ import annotations
 
-import gc
-import sys
 from dataclasses import dataclass
 from typing import Iterator, Optional
 
@@ -11,7 +9,7 @@ import netgen.meshing as ngm
 import numpy as np
 import ngsolve
 
-from .base import _SIDES, DIRICHLET, Domain, _check_level, _fail, _is_int, _is_real
+from .base import _SIDES, DIRICHLET, Domain, _check_level, _fail, _is_int, _is_real, matplotlib_tri
 
 __all__ = ["ArrayMesh", "CrissCrossSquare", "StructuredSquare"]
 
@@ -72,20 +70,6 @@ def _to_ngmesh(X, T, S, tag) -> ngm.Mesh:
     return mesh
 
 
-def _matplotlib_tri():
-    """matplotlib.tri, imported on first use.  That import leaves cyclic garbage: parser exceptions whose
-    tracebacks reach, through the frames' ``f_back``, the frames of the caller -- a whole run when a level is
-    located during it -- so that everything the run's functions held when they returned (meshes and systems of
-    every level) would stay in memory until the next full collection.  One collection right after the import
-    frees that garbage while those frames are still executing (nothing of the run is collected)."""
-    if "matplotlib.tri" in sys.modules:
-        return sys.modules["matplotlib.tri"]
-    import matplotlib.tri as mtri
-
-    gc.collect()
-    return mtri
-
-
 class _CoarseLocator:
     """Where the vertices of finer levels lie in the coarsest mesh T_0 of a hierarchy of straight-sided
     meshes: (element of T_0, NGSolve reference coordinates), for MeshPoints on T_0
@@ -106,7 +90,7 @@ class _CoarseLocator:
 
     def locate(self, pts: np.ndarray):
         """(elements (n,), reference coordinates (n, 2)) of the points ``pts`` (n, 2) of the domain."""
-        mtri = _matplotlib_tri()
+        mtri = matplotlib_tri()
         finder = mtri.Triangulation(self.X0[:, 0], self.X0[:, 1], self.T0).get_trifinder()
         n = len(pts)
         el, ref = np.empty(n, dtype=np.int32 if len(self.T0) < 2 ** 31 else np.int64), np.empty((n, 2))
