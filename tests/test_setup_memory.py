@@ -163,3 +163,28 @@ def test_a_finished_run_is_freed_without_a_garbage_collection(scene, options):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert [l for l in out.stdout.splitlines() if l.startswith("ALIVE")] == ["ALIVE 1", "ALIVE 0"]
+
+
+def test_a_finished_cli_run_is_freed_without_a_garbage_collection(tmp_path):
+    """The CLI imports the plotting module (matplotlib) when a run starts: nothing of the run is left to the cyclic
+    garbage collector once the command has returned (studies call the CLI several times in one process).  A fresh
+    interpreter, so that the first import happens in the command."""
+    code = (
+        "import gc, weakref, sys\n"
+        "gc.disable()\n"
+        "import ngcontact.drivers.level as L, ngcontact.drivers.adaptive as A\n"
+        "from ngcontact.cli import main\n"
+        "refs, solve = [], L.solve_level\n"
+        "def tracked(*a, **k):\n"
+        "    out = solve(*a, **k)\n"
+        "    refs.append(weakref.ref(out.disc))\n"
+        "    return out\n"
+        "A.solve_level = tracked\n"
+        "rc = main(['run', 'lshape', '--order', '2', '--adaptive', '--max-ndof', '2000', '--out', sys.argv[1], '-q',\n"
+        "           '--no-plots', '--no-vtk'])\n"
+        "assert rc == 0 and len(refs) >= 3\n"
+        "print('ALIVE', sum(r() is not None for r in refs))\n")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "run")], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert [l for l in out.stdout.splitlines() if l.startswith("ALIVE")] == ["ALIVE 0"]

@@ -136,7 +136,10 @@ class Session:
 
 
 def cmd_run(args, argv) -> int:
+    from ..domains.base import import_collected
     from ..drivers import run_scene
+
+    import_collected("ngcontact.plotting")  # matplotlib's first import: no garbage holding this frame's locals
     from ..plotting import write_run_plots
     from ..results import RunWriter
     from ..scenes import load_scene
@@ -200,7 +203,10 @@ def cmd_run(args, argv) -> int:
 
 
 def cmd_demo(args, argv) -> int:
+    from ..domains.base import import_collected
     from ..drivers import RunOptions, run_scene
+
+    import_collected("ngcontact.plotting")  # as in cmd_run
     from ..plotting import plot_compare, write_run_plots
     from ..results import OutputDir, RunWriter
     from ..scenes import load_scene

@@ -3,6 +3,7 @@ mesh measures."""
 from __future__ import annotations
 
 import gc
+import importlib
 import math
 import numbers
 import sys
@@ -12,7 +13,8 @@ import netgen.meshing as ngm
 import numpy as np
 import ngsolve
 
-__all__ = ["DIRICHLET", "INTERFACE", "Domain", "check_triangular", "matplotlib_tri", "mesh_size"]
+__all__ = ["DIRICHLET", "INTERFACE", "Domain", "check_triangular", "import_collected", "matplotlib_tri",
+           "mesh_size"]
 
 _SIDES = ("bottom", "right", "top", "left")
 
@@ -22,18 +24,23 @@ DIRICHLET = "(?!interface$).*"
 INTERFACE = "interface"
 
 
-def matplotlib_tri():
-    """matplotlib.tri (point location in triangulations), imported on first use.  That import leaves cyclic
-    garbage: parser exceptions whose tracebacks reach, through the frames' ``f_back``, the frames of the caller -- a
-    whole run when a mesh is searched during it -- so that everything the run's functions held when they returned
-    (meshes and systems of every level) would stay in memory until the next full collection.  One collection right
-    after the import frees that garbage while those frames are still executing (nothing of the run is collected)."""
-    if "matplotlib.tri" in sys.modules:
-        return sys.modules["matplotlib.tri"]
-    import matplotlib.tri as mtri
+def import_collected(name: str):
+    """The module ``name``, imported on first use and followed by one garbage collection.  Importing matplotlib (for
+    point location or plots) leaves cyclic garbage: parser exceptions whose tracebacks reach, through the frames'
+    ``f_back``, the frames of the caller -- a whole run when the import happens during it -- so that everything the
+    run's functions held when they returned (meshes and systems of every level, the result) would stay in memory
+    until the next full collection.  The collection right after the import frees that garbage while those frames are
+    still executing (nothing of the run is collected)."""
+    module = sys.modules.get(name)
+    if module is None:
+        module = importlib.import_module(name)
+        gc.collect()
+    return module
 
-    gc.collect()
-    return mtri
+
+def matplotlib_tri():
+    """matplotlib.tri (point location in triangulations) by :func:`import_collected`."""
+    return import_collected("matplotlib.tri")
 
 
 def mesh_size(mesh) -> float:
