@@ -701,8 +701,17 @@ def test_strip_study_table_reports_estimation_over_solve():
     """The adaptive row of make strip-study carries the ratio estimation / Newton solve of the last levels."""
     from ngcontact.studies.strip_layers import _table
 
-    adaptive = {2: {"levels": 24, "t_1e-5": 20.3, "t_estimate": 13.3, "t_solve": 4.8, "i_eff_last": [1.18, 1.15, 1.14],
-                    "est_over_solve": [2.5, 2.25, 2.0, 1.5]}}
+    adaptive = {2: {"levels": 24, "t_1e-5": 20.3, "t_1e-5_run": 18.1, "t_estimate": 13.3, "t_solve": 4.8,
+                    "i_eff_last": [1.18, 1.15, 1.14], "est_over_solve": [2.5, 2.25, 2.0, 1.5]}}
     text = _table({}, adaptive)
     assert "| estimation / solve, last 4 levels |" in text
-    assert "| 2 | 24 | 20.3 | 13.3 | 4.8 | 1.180 1.150 1.140 | 2.50 2.25 2.00 1.50 |" in text
+    assert "| 2 | 24 | 20.3 | 18.1 | 13.3 | 4.8 | 1.180 1.150 1.140 | 2.50 2.25 2.00 1.50 |" in text
+
+
+def test_strip_study_run_times_leave_out_the_exact_error_evaluations():
+    """The time to 1e-5 'without the exact errors' subtracts every level's time_post_s up to that level."""
+    from ngcontact.studies.strip_layers import run_times
+
+    rows = [{"time_cum_s": 1.0, "time_post_s": 0.25}, {"time_cum_s": 3.0, "time_post_s": 0.5},
+            {"time_cum_s": 7.0, "time_post_s": 1.0}]
+    assert run_times(rows) == [0.75, 2.25, 5.25]
