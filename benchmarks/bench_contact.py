@@ -98,6 +98,7 @@ def run_case(case: str, quick: bool) -> list:
     from ngcontact import CrissCrossSquare
     from ngcontact.drivers import RunOptions, run_scene
     from ngcontact.scenes import load_scene
+    from ngcontact.studies.strip_layers import run_times
 
     SetNumThreads(2)
     stop = "balanced" if "-balanced" in case else "residual"
@@ -140,7 +141,7 @@ def run_case(case: str, quick: bool) -> list:
         return sum(q["time_prolong_s"] + q["time_solve_s"] for q in rows_upto)
 
     def run_time(rows_upto):  # the whole nested run without the error evaluations
-        return rows_upto[-1]["time_cum_s"] - sum(q["time_post_s"] for q in rows_upto)
+        return run_times(rows_upto)[-1]
 
     for L in report:
         r = runs[-1][: L + 1]

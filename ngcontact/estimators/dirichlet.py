@@ -129,11 +129,10 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
         gu.Set(fd.u, BND)
         w = GridFunction(V, name=f"w_{fd.name}")
         w.vec.data = gg.vec - gu.vec
-        g_max = float(np.abs(gg.vec.FV().NumPy()).max())
-        ws.append(w if float(np.abs(w.vec.FV().NumPy()).max()) > 1e-13 * g_max else None)  # in the units of g
-        if ws[-1] is not None:
-            wv = w.vec.FV().NumPy()
-            above = np.abs(wv) > 1e-13 * g_max
+        wv = w.vec.FV().NumPy()
+        above = np.abs(wv) > 1e-13 * float(np.abs(gg.vec.FV().NumPy()).max())  # round-off in the units of g
+        ws.append(w if above.any() else None)
+        if above.any():
             wv[~above] = 0.0  # round-off of a zero trace: w_h = 0 there, off the strip
             trace |= above
     if all(w is None for w in ws):
