@@ -173,3 +173,23 @@ def test_interface_meshes_are_rejected_by_hho_and_dg():
     for disc in ("hho", "sipg"):
         with pytest.raises(ValueError, match="fem only"):
             DISCRETIZATIONS[disc](prob, prob.domain.mesh(0), order=1)
+
+
+def test_uniform_run_measures_h_on_its_own_meshes(monkeypatch):
+    """A uniform run on a netgen geometry meshes it once: the h column is measured on the level meshes the run
+    has (Domain.h(level, mesh=...)), not by generating the levels again; the values are the levels' mesh sizes."""
+    from dataclasses import replace
+
+    from ngcontact.drivers import RunOptions, run_scene
+    from ngcontact.scenes import load_scene
+
+    base = load_scene("disk")
+    domain = UnitDisk(maxh=0.4)
+    scene = replace(base, problem=replace(base.problem, domain=domain), defaults={})
+    calls = []
+    coarse = UnitDisk._coarse
+    monkeypatch.setattr(UnitDisk, "_coarse", lambda self: calls.append(1) or coarse(self))
+    res = run_scene(scene, RunOptions(levels=3))
+    assert len(calls) == 1
+    monkeypatch.setattr(UnitDisk, "_coarse", coarse)
+    assert [row["h"] for row in res.rows] == [mesh_size(m) for m in UnitDisk(maxh=0.4).meshes(3)]

@@ -130,11 +130,13 @@ class Domain:
         for ngmesh in self._ngmeshes(0, _check_level(levels, "levels")):
             yield ngsolve.Mesh(ngmesh)
 
-    def h(self, level: int = 0) -> float:
-        """Mesh size of T_level: ``mesh_size(self.mesh(level))``, cached per level."""
+    def h(self, level: int = 0, mesh=None) -> float:
+        """Mesh size of T_level: ``mesh_size`` of T_level, cached per level.  ``mesh``: T_level as the caller has
+        it (an NGSolve mesh of this domain's level), measured instead of generating the level again (for a netgen
+        geometry: the coarse mesh and ``level`` refinements)."""
         level, cache = _check_level(level), self.__dict__.setdefault("_h_cache", {})
         if level not in cache:
-            cache[level] = mesh_size(self.mesh(level))
+            cache[level] = mesh_size(mesh if isinstance(mesh, ngsolve.Mesh) else self.mesh(level))
         return cache[level]
 
 

@@ -243,8 +243,8 @@ class _BoxDomain(Domain):
             X = T = S = tag = None
             yield level
 
-    def h(self, level: int = 0) -> float:
-        """Nominal mesh size: side of the squares of T_level (longest side if a rectangle)."""
+    def h(self, level: int = 0, mesh=None) -> float:
+        """Nominal mesh size: side of the squares of T_level (longest side if a rectangle); ``mesh`` is not needed."""
         level = _check_level(level)
         return max(self.xmax - self.xmin, self.ymax - self.ymin) / (self.n0 * 2 ** level)
 

@@ -63,12 +63,13 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
         out = solve_level(problem, mesh, options, previous=handoff, initial_guess=scene.initial_guess,
                           with_estimate=options.estimate, callback=iteration_callback(result, level, newton_callback),
                           inputs=level_inputs)
+        h = problem.domain.h(level, mesh=mesh)  # measured on this level's mesh (not generated again)
         mesh = level_inputs = None
         if level == options.levels - 1 and t_inputs:
             out.disc.time_assembly += t_inputs  # the finest level's loads and data, before level 0
         total = time.perf_counter() - t0 + t_before + (t_inputs if level == options.levels - 1 else 0.0)
         t_cum += total
-        row = level_row(level, out, options, h=problem.domain.h(level), times={"time_mesh_s": t_mesh})
+        row = level_row(level, out, options, h=h, times={"time_mesh_s": t_mesh})
         row.update(time_total_s=total, time_cum_s=t_cum)
         result.rows.append(row)
         update_rates(result.rows, lambda q: q["h"])
