@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from ngsolve import Parameter
+from ngsolve import Parameter, sin
 
 from ngcontact import CrissCrossSquare, TwoMembraneProblem
 from ngcontact.problems import ParabolicProblem, ProblemDataError
@@ -280,3 +280,101 @@ def test_spacetime_picture_uses_the_step_times():
     assert np.allclose(np.asarray(mesh.get_array()).reshape(2, 4)[0], [0, 0, 1, 1])
     for f in figs.values():
         plt.close(f)
+
+
+# ------------------------------------------------------------------ units of the stopping tests
+def _shifted(problem, c):
+    """The same problem with c added to both membranes (Dirichlet and initial data; loads unchanged)."""
+    from dataclasses import replace
+
+    st = replace(problem.stationary, g1=problem.stationary.g1 + c, g2=problem.stationary.g2 + c)
+    return replace(problem, stationary=st, u0=(problem.u0[0] + c, problem.u0[1] + c))
+
+
+def test_constant_added_to_both_membranes_shifts_the_solution():
+    """u + c solves the problem with data + c: the steps must give the shifted iterates.  With the Newton test
+    relative to F^n (which carries M X^{n-1} / dt) and the certificate's penetration relative to ||u||_inf, the
+    shifted run stopped with gaps of -8.7e-5 (1e-4 of the solution's range)."""
+    from dataclasses import replace
+
+    sc = load_scene("parabolic_manufactured")
+    c = 1e6
+    runs = [run_parabolic_scene(replace(sc, problem=p), dict(dt=0.05, t_final=0.3, level=1), snapshot_every=1)[0]
+            for p in (sc.problem, _shifted(sc.problem, c))]
+    a, b = runs
+    ni = a.stepper.disc.n_interior
+    assert b.converged and len(a.snapshots) == len(b.snapshots) == 6
+    for sa, sb in zip(a.snapshots, b.snapshots):
+        assert np.abs((sb[2] - c) - sa[2]).max() <= 1e-8  # round-off of 1e6 is 1e-10
+        assert (sb[2][:ni] - sb[2][ni:]).min() >= -1e-9
+        # X3 = (K X - F) / D: round-off 1e-16 c ||K|| / D ~ 4e-8 here (old: 3e-5, the wrong active set)
+        assert np.abs(sb[3] - sa[3]).max() <= 1e-5 * np.abs(sa[3]).max()
+
+
+def test_tiny_time_step_keeps_the_multiplier():
+    """dt = 1e-12: the step's Newton test is relative to what drives the step (F(t) - K X^{n-1}), not to F^n ~ 1/dt,
+    so the contact force is computed (with F^n as the divisor the start passed the test: 0 iterations, X3 = 0)."""
+    sc = load_scene("parabolic_manufactured")
+    ys = []
+    for dt in (1e-8, 1e-12):
+        r, _, _ = run_parabolic_scene(sc, dict(dt=dt, t_final=2 * dt, level=1))
+        assert r.converged and all(q["newton_its"] >= 1 for q in r.rows[:1])
+        ys.append(r.y.sum())
+    assert ys[0] > 0.1 and ys[1] == pytest.approx(ys[0], rel=1e-5)
+
+
+def test_contact_area_in_the_units_of_the_gap():
+    """The same contact set (and area) for the data scaled by 1e-8 (the threshold was 1e-10 max(1, |X|))."""
+    from dataclasses import replace
+
+    sc = load_scene("parabolic_manufactured")
+    P = sc.problem
+    areas = []
+    for f in (1.0, 1e-8):
+        st = replace(P.stationary, f1=f * P.stationary.f1, f2=f * P.stationary.f2)
+        r, _, _ = run_parabolic_scene(replace(sc, problem=replace(P, stationary=st, u0=(f * P.u0[0], f * P.u0[1]))),
+                                      dict(dt=0.05, t_final=0.1, level=1))
+        areas.append([q["contact_area"] for q in r.rows])
+    assert areas[0][0] > 0.1 and np.allclose(areas[1], areas[0], rtol=1e-6)
+
+
+def test_step_cap_is_a_named_stop():
+    sc = load_scene("parabolic_manufactured")
+    r, _, _ = run_parabolic_scene(sc, dict(dt=0.05, t_final=0.3, level=0, max_steps=2))
+    assert not r.converged and len(r.rows) == 2
+    assert any(f.startswith("max_steps: 2 steps") and "t = 0.1 < T = 0.3" in f for f in r.failures)
+
+
+def test_dirichlet_data_periodic_in_time_rejected():
+    """g(0) = g(T) but g depends on t (the check compared t = 0 and t = T only)."""
+    t = Parameter(0.0)
+    P = ParabolicProblem(_stat(g1=1.0 + 0.1 * sin(2 * math.pi * t)), u0=(1.0, 0.0), t_final=1.0, time=t)
+    with pytest.raises(ProblemDataError, match="g1 depends on the time parameter"):
+        BackwardEuler(P, P.domain.mesh(0))
+
+
+def test_data_with_a_parameter_need_the_time_argument():
+    t = Parameter(0.0)
+    with pytest.raises(ProblemDataError, match=r"stationary.f1 depends on an ngsolve Parameter but .*time is None"):
+        ParabolicProblem(TwoMembraneProblem(domain=CrissCrossSquare(n0=2), f1=-1.0 - t, f2=1.0), u0=(1.0, 0.0),
+                         t_final=1.0)
+
+
+def test_hypotheses_allow_round_off_multipliers():
+    """X3 = -1e-14 max X3 (a Fischer-Burmeister iterate where the multiplier is 0) keeps the bound proven; a
+    negative multiplier of 1e-6 max X3 does not."""
+    from types import SimpleNamespace
+
+    from ngcontact.timestepping.estimate import hypotheses
+
+    sc = load_scene("parabolic_manufactured")
+    disc = BackwardEuler(sc.problem, sc.problem.domain.mesh(0)).disc
+    ni = disc.n_interior
+    x = np.concatenate([np.ones(ni), np.zeros(ni)])
+    comp = SimpleNamespace(terms={"eta_bc": 0.0, "eps_w": 0.0})
+    y = np.zeros(ni)
+    y[0] = 2.0
+    y[1] = -2e-14
+    assert hypotheses(disc, x, y, comp) == (True, "")
+    y[1] = -2e-6
+    assert not hypotheses(disc, x, y, comp)[0]

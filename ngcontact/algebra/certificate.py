@@ -4,15 +4,18 @@ The Newton loop's residual test measures ||Phi(X)|| / ||F||, one number that mix
 units of F with a complementarity defect; the certificate checks the three conditions of
 g(x) >= 0, y >= 0, g . y = 0 one by one, each in its own units:
 
-* ``penetration`` = max(-g)^+ / U, U = max(||x||_inf, ||b||_inf) (units of u);
+* ``penetration`` = max(-g)^+ / U (units of u), U = max(osc x, osc b, SHIFT_FLOOR max(||x||_inf, ||b||_inf)),
+  osc v = max v - min v: a constant added to u and to the obstacle (or to both membranes) changes neither the gap
+  nor U (with U = ||x||_inf, u shifted by 1e6 accepted a penetration of 1e-3 of the solution's range);
+  the floor keeps round-off gaps of a constant u (osc x = 0) from counting;
 * ``negativity``  = max(-y)^+ / Y, Y = max(||y||_inf, ROUND_OFF ||F||_inf / max D) (units of y:
   K x - B^T D y = F makes F / D a multiplier; the second term keeps round-off multipliers of a
   solve without contact from counting as negative);
 * ``slackness``   = max_i min(g_i^+ / U, y_i^+ / Y) (a row with both an open gap and a positive
   multiplier).
 
-All three are invariant under scaling of the data (u, F, y by s) and of the tensions (F, y by s,
-u fixed).  The certificate holds when each is at most ``tol``; ``tol = inf`` records the values
+All three are invariant under scaling of the data (u, F, y by s), of the tensions (F, y by s,
+u fixed) and under shifts of u and b by a constant.  The certificate holds when each is at most ``tol``; ``tol = inf`` records the values
 without requiring them (the adaptive stop of [JSC20], whose iterates the estimators certify).
 """
 from __future__ import annotations
@@ -21,10 +24,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["Certificate", "certificate", "pair_certificate", "ROUND_OFF"]
+__all__ = ["Certificate", "certificate", "pair_certificate", "gap_unit", "ROUND_OFF"]
 
 #: multipliers below ROUND_OFF ||F||_inf / max D are round-off (a solve without contact leaves y ~ 1e-19 there)
 ROUND_OFF = 1e-8
+#: the smallest unit of the gap relative to the size of u: gaps of 1e-16 ||x||_inf (round-off) pass the default
+#: tolerance 1e-7 even where u is constant
+SHIFT_FLOOR = 1e-6
 
 
 @dataclass(frozen=True)
@@ -55,6 +61,10 @@ def _inf(v) -> float:
     return float(np.max(np.abs(v))) if len(v) else 0.0
 
 
+def _osc(v) -> float:
+    return float(np.max(v) - np.min(v)) if len(v) else 0.0
+
+
 def pair_certificate(a: np.ndarray, b: np.ndarray, A: float, B: float, tol: float) -> Certificate:
     """The certificate of a >= 0, b >= 0, a . b = 0 with a measured relative to A and b relative to B."""
     tiny = np.finfo(float).tiny
@@ -71,6 +81,11 @@ def pair_certificate(a: np.ndarray, b: np.ndarray, A: float, B: float, tol: floa
 def certificate(system, x: np.ndarray, y: np.ndarray, tol: float) -> Certificate:
     """The certificate of (x, y) for the linear complementarity ``system`` (module doc)."""
     Dmax = float(np.max(system.D)) if len(system.D) else 1.0
-    U = max(_inf(x), _inf(system.b))
     Y = max(_inf(y), ROUND_OFF * _inf(system.F) / Dmax)
-    return pair_certificate(system.gap(x), y, U, Y, tol)
+    return pair_certificate(system.gap(x), y, gap_unit(system, x), Y, tol)
+
+
+def gap_unit(system, x: np.ndarray) -> float:
+    """U of the module doc: the unit of the gaps of ``x`` (shift-invariant)."""
+    size = max(_inf(x), _inf(system.b))
+    return max(_osc(x), _osc(system.b), SHIFT_FLOOR * size)

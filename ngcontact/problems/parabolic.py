@@ -17,11 +17,12 @@ from dataclasses import dataclass
 from typing import Optional, Tuple
 
 import numpy as np
+from ngsolve import CoefficientFunction
 
 from .base import ExactSolution, ProblemDataError, _as_cf
 from .membranes import TwoMembraneProblem
 
-__all__ = ["ParabolicProblem", "check_initial_on_points"]
+__all__ = ["ParabolicProblem", "check_initial_on_points", "DIRICHLET_CHECK_TIMES"]
 
 
 @dataclass(frozen=True)
@@ -69,9 +70,26 @@ class ParabolicProblem:
         object.__setattr__(self, "t_final", float(T))
         if self.time is not None and type(self.time).__name__ != "Parameter":
             raise ProblemDataError(f"{cls}.time must be an ngsolve Parameter or None, got {type(self.time).__name__}")
+        if self.time is None:  # data built from a Parameter that nobody sets would stay at its initial value
+            for name, cf in self._data_fields():
+                if "ParameterCoefficientFunction" in str(cf):
+                    raise ProblemDataError(f"{cls}.{name} depends on an ngsolve Parameter but {cls}.time is None: "
+                                           f"pass the Parameter of t as time=... (the time stepper sets it)")
         if self.exact is not None:
             if not isinstance(self.exact, ExactSolution) or self.exact.u2 is None:
                 raise ProblemDataError(f"{cls}.exact must be an ExactSolution with u1 and u2, got {self.exact!r}")
+
+    def _data_fields(self):
+        """(name, CoefficientFunction) of the data that may depend on t: loads, Dirichlet data, initial data, exact
+        solution."""
+        st = self.stationary
+        out = [(f"stationary.{n}", cf) for n, cf in zip(("f1", "f2"), st.loads)]
+        out += list(zip((f"stationary.{n}" for n in st.dirichlet_names), st.dirichlet))
+        out += [(f"u0[{i}]", cf) for i, cf in enumerate(self.u0)]
+        if self.exact is not None:
+            out += [(f"exact.{n}", getattr(self.exact, n)) for n in ("u1", "u2", "lam")
+                    if getattr(self.exact, n, None) is not None]
+        return [(n, cf) for n, cf in out if isinstance(cf, CoefficientFunction)]
 
     # the declared interface of the stationary problem, read through
     @property
@@ -96,7 +114,12 @@ class ParabolicProblem:
             self.time.Set(float(t))
 
 
-def check_initial_on_points(problem: ParabolicProblem, u0_values, boundary_at_0, boundary_at_T, coords,
+#: the times (fractions of T) at which the Dirichlet data are compared with those at t = 0 (irrational fractions: a
+#: g periodic in t with g(0) = g(T) differs from g(0) at one of them)
+DIRICHLET_CHECK_TIMES = (0.1309, 0.2718, 0.5, 0.7071, 0.9137, 1.0)
+
+
+def check_initial_on_points(problem: ParabolicProblem, u0_values, boundary_at_0, boundary_later, coords,
                             tol: float = 1e-12) -> None:
     """Checks that need the nodes: u1^0 >= u2^0 everywhere, finite initial data, Dirichlet data constant in t.
 
@@ -104,8 +127,10 @@ def check_initial_on_points(problem: ParabolicProblem, u0_values, boundary_at_0,
     ----------
     u0_values : (ndarray, ndarray)
         u1^0, u2^0 at the nodes.
-    boundary_at_0, boundary_at_T : list of ndarray
-        g1, g2 at the boundary nodes with the time parameter at 0 and at T.
+    boundary_at_0 : list of ndarray
+        g1, g2 at the boundary nodes with the time parameter at 0.
+    boundary_later : list of (t, list of ndarray)
+        the same at later times t (e.g. :data:`DIRICHLET_CHECK_TIMES` times T).
     coords : ndarray (n, 2)
         the nodes (for the messages).
     """
@@ -121,7 +146,9 @@ def check_initial_on_points(problem: ParabolicProblem, u0_values, boundary_at_0,
         k = int(np.argmin(d))
         raise ProblemDataError(f"{cls}.u0: u1^0 < u2^0 (the initial data violate u1 - u2 >= 0); at "
                                f"({coords[k, 0]:.4g}, {coords[k, 1]:.4g}) the difference is {d[k]:.3e}")
-    for name, a, b in zip(problem.stationary.dirichlet_names, boundary_at_0, boundary_at_T):
-        if len(a) and np.max(np.abs(a - b)) > 1e-12 * max(1.0, float(np.max(np.abs(a)))):
-            raise ProblemDataError(f"{cls}.stationary.{name} depends on the time parameter (g(0) and g(T) differ "
-                                   f"by {np.max(np.abs(a - b)):.3e}): time-dependent Dirichlet data are not supported")
+    for t, values in boundary_later:
+        for name, a, b in zip(problem.stationary.dirichlet_names, boundary_at_0, values):
+            if len(a) and np.max(np.abs(a - b)) > 1e-12 * max(1.0, float(np.max(np.abs(a)))):
+                raise ProblemDataError(f"{cls}.stationary.{name} depends on the time parameter (g(0) and g({t:.4g}) "
+                                       f"differ by {np.max(np.abs(a - b)):.3e}): time-dependent Dirichlet data are not "
+                                       f"supported")

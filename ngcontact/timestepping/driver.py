@@ -33,6 +33,7 @@ the moving contact set without coarsening would leave the whole swept region fin
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
@@ -57,7 +58,8 @@ DT_SAFETY = {"balance": 0.8, "equidistribute": 0.2}
 def _positive(name, v, allow_none=False):
     if v is None and allow_none:
         return
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < math.inf):
+    # a subnormal positive number (< 2.2e-308) counts as 0: 1/v overflows
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (sys.float_info.min <= v < math.inf):
         raise option_error(name, v, "> 0" + (" (or None)" if allow_none else ""))
 
 
@@ -140,10 +142,16 @@ class ParabolicResult:
 
 
 def _contact_measure(disc, x, y) -> float:
-    """|{u1h - u2h <= eps}|, eps = 1e-10 max |X| (the area of the discrete contact set)."""
+    """|{u1h - u2h <= eps}|, eps = 1e-10 max |nodal gap| (the area of the discrete contact set; eps in the units of
+    the gap: the same set for data scaled by any factor or u shifted by a constant)."""
     gap = disc.gridfunctions(x, y)["gap"]
-    eps = 1e-10 * max(1.0, float(np.max(np.abs(x), initial=0.0)))
+    eps = max(1e-10 * float(np.max(np.abs(disc.system.gap(x)), initial=0.0)), np.finfo(float).tiny)
     return float(Integrate(IfPos(eps - gap, 1.0, 0.0), disc.mesh, order=2 * disc.order + 2))
+
+
+def _min(v: np.ndarray) -> float:
+    """The smallest entry (nan for no entry)."""
+    return float(v.min()) if len(v) else float("nan")
 
 
 def _quantize(dt: float, dt0: float) -> float:
@@ -202,7 +210,10 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
         system = stepper.system(x, t_new, h)
         if est is not None:
             est.set_step(system, x, t_new, h)
-        sol = semismooth_newton(system, x, y, o.newton_options, linear=linear, stop=o.stop)
+        # Newton on the increment d = X^n - X^{n-1} (from d = 0, X3 of the last step); X^n = X^{n-1} + d
+        sol = semismooth_newton(stepper.increment_system(system, x, t_new), np.zeros_like(x), y, o.newton_options,
+                                linear=linear, stop=o.stop)
+        x_new = x + sol.x
         hist = sol.history[1:]
         row = {"n": n + 1, "t": t_new, "dt": h, "newton_its": sol.iterations, "newton_converged": int(sol.converged),
                "res_final": sol.history[-1].res, "gmres_its": sol.gmres_total,
@@ -211,8 +222,8 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
         if est is not None:
             problem.set_time(t_new)
             comp = est.components(sol.x, sol.y)
-            ok, why = hypotheses(disc, sol.x, sol.y, comp)
-            dxv = sol.x - x
+            ok, why = hypotheses(disc, x_new, sol.y, comp)
+            dxv = sol.x
             A, B = spatial_part(comp), math.sqrt(max(float(dxv @ (stepper.K @ dxv)), 0.0))
             if o.adaptive_dt and B / math.sqrt(3) > o.reject * A and h > dt_min * (1 + 1e-12) and h == dt:
                 dt = max(_quantize(h * max(o.safety * A * math.sqrt(3) / B, 0.25), o.dt), dt_min)
@@ -223,18 +234,19 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
                 say(f"  step {n + 1}: t={t_new:.4g} rejected (eta_tm={B / math.sqrt(3):.2e} > {o.reject:g} eta_sp="
                     f"{A:.2e}); dt -> {dt:.3g}")
                 continue
-            gfs_now = ti.fields(sol.x, np.maximum(sol.y, 0.0))
+            gfs_now = ti.fields(x_new, np.maximum(sol.y, 0.0))
             C = ti.contact(gfs_now["gap"], gfs_prev["gap"], gfs_now["lam"])
             row.update(st.add_step(n + 1, h, A, B, C, ti.f_oscillation(t, t_new), ok, why))
             row.update(eta_disc=comp.eta_disc, eta_lin=comp.eta_lin, eta_alg=comp.eta_alg)
-        gfs_now = ti.fields(sol.x, sol.y)
+        gfs_now = ti.fields(x_new, sol.y)
         if exact:
             e2 = ti.energy_error2(gfs_prev, gfs_now, t, t_new)
             err2 += e2
             row["err_energy_n"] = math.sqrt(e2 / h)
-        active = system.gap(sol.x) <= sol.y
-        row.update(active_nodes=int(active.sum()), contact_area=_contact_measure(disc, sol.x, sol.y),
-                   gap_min=float(system.gap(sol.x).min(initial=0.0)), lam_min=float(sol.y.min(initial=0.0)))
+        gap = system.gap(x_new)
+        active = gap <= sol.y
+        row.update(active_nodes=int(active.sum()), contact_area=_contact_measure(disc, x_new, sol.y),
+                   gap_min=_min(gap), lam_min=_min(sol.y))
         for name, m in masks.items():
             row[f"active_{name}"] = int((active & m).sum())
             if row[f"active_{name}"] and name not in onset:
@@ -251,7 +263,7 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
         if not sol.converged:
             res.converged = False
             res.failures.append(f"step {n + 1} (t = {t_new:.6g}): Newton did not converge: {sol.reason}")
-        x, y, t, n, gfs_prev = sol.x, sol.y, t_new, n + 1, gfs_now
+        x, y, t, n, gfs_prev = x_new, sol.y, t_new, n + 1, gfs_now
         if snapshot_every and (n % snapshot_every == 0 or t >= T * (1 - 1e-12)):
             res.snapshots.append((n, t, x.copy(), y.copy()))
         if o.adaptive_dt and est is not None:
@@ -264,6 +276,9 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
         eta_txt = f" eta_sp={row['eta_sp_n']:.2e} eta_tm={row['eta_tm_n']:.2e}" if "eta_sp_n" in row else ""
         say(f"  step {n}: t={t:.4g} dt={h:.3g} newton={sol.iterations} gmres={sol.gmres_total} "
             f"active={row['active_nodes']}{eta_txt}")
+    if t < T * (1 - 1e-12):  # the loop ended on the step cap before T
+        res.converged = False
+        res.failures.append(f"max_steps: {n} steps (max_steps = {o.max_steps}) reached at t = {t:.6g} < T = {T:.6g}")
     res.x, res.y = x, y
     s = {"t_final": t, "steps": n, "dt": o.dt, "order": o.order, "newton": o.newton, "cfun": o.cfun,
          "adaptive_dt": o.adaptive_dt, "nelem": mesh.ne, "ndof": disc.ndof, "newton_total": cum["newton"],

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from ngsolve import GridFunction, Integrate, InnerProduct, grad
 
+from ..algebra.certificate import gap_unit
 from ..estimators import EstimatorOptions, algebraic_flux, estimate_components, friedrichs_constant
 from ..estimators.nonnegative import QuadratureArrays
 
@@ -88,8 +89,9 @@ class StepDiscretization:
 
 
 class StepEstimator:
-    """Estimator components of an iterate of step n (``components(x, y, r_alg, dx)``: the interface the
-    adaptive Krylov strategy of the Newton loop calls)."""
+    """Estimator components of an iterate of step n (``components(d, y, r_alg, dx)``: the interface the
+    adaptive Krylov strategy of the Newton loop calls), d the increment X - X^{n-1} that the loop solves for
+    (:meth:`~.euler.BackwardEuler.increment_system`); the estimators see X and the step's ``system``."""
 
     def __init__(self, stepper, options: EstimatorOptions = None):
         self.stepper = stepper
@@ -100,7 +102,8 @@ class StepEstimator:
     def set_step(self, system, x_prev, t: float, dt: float) -> None:
         self.system, self.x_prev, self.t, self.dt = system, x_prev, t, dt
 
-    def components(self, x, y, r_alg=None, dx_alg=None):
+    def components(self, d, y, r_alg=None, dx_alg=None):
+        x = self.x_prev + d
         self.stepper.problem.set_time(self.t)
         self.view.set_iterate(self.system, x, self.x_prev, self.dt)
         sig = None if dx_alg is None else algebraic_flux(self.view, dx_alg, self.options)
@@ -149,15 +152,19 @@ def spatial_part(comp) -> float:
     return float(t["eta_FR_disc"] + t["eta_quad"] + t["nonc2_disc"] + t["nonc2_lin"] + comp.eta_alg)
 
 
+#: gaps and multipliers above -ROUND_OFF_HYP times their units count as nonnegative in :func:`hypotheses`
+#: (Fischer-Burmeister iterates end with X3 ~ -1e-14 where the multiplier is 0)
+ROUND_OFF_HYP = 1e-13
+
+
 def hypotheses(disc, x, y, comp) -> tuple:
     """(ok, why): the hypotheses of the bound at this step (P1, nodal gaps >= 0, X3 >= 0, exact Dirichlet data)."""
     if disc.order != 1:
         return False, f"P{disc.order}: the discrete gap may be negative between the nodes"
     g = disc.system.gap(x)
-    scale = 1e-13 * max(1.0, float(np.max(np.abs(x), initial=0.0)))
-    if g.min(initial=0.0) < -scale:
+    if g.min(initial=0.0) < -ROUND_OFF_HYP * gap_unit(disc.system, x):  # round-off of the gaps, in units of u
         return False, f"negative nodal gap {g.min():.3e}"
-    if y.min(initial=0.0) < 0:
+    if y.min(initial=0.0) < -ROUND_OFF_HYP * float(np.max(np.abs(y), initial=0.0)):  # in units of X3
         return False, f"negative multiplier X3 {y.min():.3e}"
     if comp.terms["eta_bc"] > 0 or comp.terms["eps_w"] > 0:
         return False, "Dirichlet data needed a correction"
