@@ -193,3 +193,36 @@ def test_uniform_run_measures_h_on_its_own_meshes(monkeypatch):
     assert len(calls) == 1
     monkeypatch.setattr(UnitDisk, "_coarse", coarse)
     assert [row["h"] for row in res.rows] == [mesh_size(m) for m in UnitDisk(maxh=0.4).meshes(3)]
+
+
+def _vol_lines(tmp_path):
+    path = tmp_path / "square.vol"
+    StructuredSquare(2).mesh(0).ngmesh.Save(str(path))
+    return path, path.read_text().splitlines()
+
+
+def test_mesh_file_cut_off_or_with_bad_point_numbers_is_refused(tmp_path):
+    """netgen's Mesh.Load reads such files past their end (the process crashed without a message)."""
+    path, lines = _vol_lines(tmp_path)
+    i = lines.index("surfaceelements")
+    bad = tmp_path / "cut.vol"
+    bad.write_text("\n".join(lines[:i + 4]) + "\n")
+    with pytest.raises(ValueError, match="section 'surfaceelements' .* cut off"):
+        MeshFileDomain(bad).mesh(0)
+    fields = lines[i + 2].split()
+    fields[5] = "9999"
+    bad.write_text("\n".join(lines[:i + 2] + [" ".join(fields)] + lines[i + 3:]) + "\n")
+    with pytest.raises(ValueError, match=r"refers to points \[9999, 2, 5\] \(the file has 9 points\)"):
+        MeshFileDomain(bad).mesh(0)
+    assert MeshFileDomain(path).mesh(0).ne == 8  # the untouched file loads
+
+
+def test_degenerate_triangle_is_refused(tmp_path):
+    path, lines = _vol_lines(tmp_path)
+    i = lines.index("surfaceelements")
+    fields = lines[i + 2].split()
+    fields[7] = fields[6]  # a repeated vertex: zero area
+    bad = tmp_path / "flat.vol"
+    bad.write_text("\n".join(lines[:i + 2] + [" ".join(fields)] + lines[i + 3:]) + "\n")
+    with pytest.raises(ValueError, match="1 degenerate triangle"):
+        MeshFileDomain(bad).mesh(0)

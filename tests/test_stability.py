@@ -265,3 +265,15 @@ def test_constant_added_to_both_membranes_changes_nothing():
     for qa, qb in zip(a.rows, b.rows):
         assert qb["err_energy"] == pytest.approx(qa["err_energy"], rel=1e-6)
         assert qb["gap_min"] >= -1e-9
+
+
+def test_membranes_equal_everywhere_without_multiplier_converge():
+    """f1 / mu1 = f2 / mu2 and g1 = g2: u1 = u2 everywhere and lam = 0; the multipliers of the solve are round-off
+    (-1e-13 F / D at 6k unknowns), which the certificate's negativity measures in the units F / D of the balance
+    equations (relative to 1e-8 F / D every level from 1 on ran 200 steps and ended 'not converged')."""
+    from ngcontact import CrissCrossSquare, TwoMembraneProblem
+
+    problem = TwoMembraneProblem(domain=CrissCrossSquare(n0=4), f1=3.0, f2=0.2, g1=0.0, g2=0.0, mu1=3.0, mu2=0.2)
+    res = run_scene(Scene(name="equal", path=None, problem=problem), RunOptions(levels=4))
+    assert res.converged
+    assert all(q["newton_its"] <= 2 and q["certified"] for q in res.rows)

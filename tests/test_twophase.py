@@ -78,7 +78,8 @@ def test_short_run_gas_appears_at_x0_with_mass_balance():
 
 
 @pytest.mark.parametrize("field, value", [("porosity", 0.0), ("n_vg", 1.0), ("mu_g", -1.0), ("eps_reg", 0.7),
-                                          ("s_lr", 1.2), ("q_inject", -1.0), ("henry", float("nan"))])
+                                          ("s_lr", 1.2), ("q_inject", -1.0), ("henry", float("nan")),
+                                          ("chi_right", 2.0), ("chi_right", 1e-4)])
 def test_parameter_errors_name_the_field(field, value):
     with pytest.raises(ValueError, match=f"parameters? [a-z_, ]*{field}"):
         TwoPhaseParams(**{field: value})
@@ -227,3 +228,28 @@ def test_eta_lin_is_the_flux_error_of_the_newton_iterate():
     assert tested >= 6
     with pytest.raises(ValueError, match="option t_years must be >= 2 dt_years"):
         linearization_check(t_years=1e4, cells=100, dt_years=2e4)
+
+
+def test_small_time_steps_inject_the_hydrogen():
+    """dt = 1e-4 years on 50 cells: the injected mass per step is below 1e-8 of a cell's reference mass (the rows'
+    unit); the Newton test is relative to the step's own driving residual, so the hydrogen gets in (with the
+    absolute test every step passed at its start: no Newton step, no hydrogen in the domain)."""
+    prm = TwoPhaseParams()
+    disc = TwoPhaseFV(prm, interval_mesh(prm.length, 50))
+    x0 = initial_state(prm, disc.mesh)
+    run = run_h2(prm, cells=50, dt_years=1e-4, t_final_years=2e-3, estimate=False)
+    gained = disc.masses(run.x)[1] - disc.masses(x0)[1]
+    assert run.completed and run.newton_total >= 1
+    assert gained == pytest.approx(prm.injection_rate(0.0, 2e-3 * YEAR) * 2e-3 * YEAR, rel=1e-6)
+
+
+def test_gas_in_every_cell_is_certified():
+    """Injection x1000: the gas reaches x = L (b = H (P + P_c) - beta_l chi = 0 in every cell).  The certificate
+    measures b in the units of its two terms (relative to ||b||_inf ~ 1e-16 the converged steps failed it and the
+    run gave up after six dt cuts at t ~ 2070 years)."""
+    from ngcontact.twophase.run import gas_end
+
+    prm = TwoPhaseParams(q_inject=5.57e-3)
+    run = run_h2(prm, cells=20, dt_years=50, t_final_years=4000, estimate=False)
+    assert run.completed and not run.log
+    assert gas_end(run.disc, run.x) == pytest.approx(prm.length)

@@ -73,6 +73,17 @@ def check_triangular(ngmesh, what: str) -> None:
     if nodes.shape[1] > 3 and (nquad := int(np.count_nonzero(nodes[:, 3]))):
         raise ValueError(f"{what} has {nquad} quadrilateral element(s) of {len(nodes)}; ngcontact needs a triangular "
                          f"mesh (netgen: GenerateMesh without quad_dominated)")
+    X = np.asarray(ngmesh.Coordinates())[:, :2]
+    P = X[nodes[:, :3].astype(np.int64) - 1]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    area2 = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    diam2 = np.max([np.sum(e1 ** 2, axis=1), np.sum(e2 ** 2, axis=1), np.sum((P[:, 2] - P[:, 1]) ** 2, axis=1)], axis=0)
+    flat = np.flatnonzero(~(area2 > 1e-12 * diam2))  # (twice) the area relative to the squared diameter
+    if len(flat):
+        k = int(flat[0])
+        corners = [tuple(float(c) for c in v) for v in P[k]]
+        raise ValueError(f"{what} has {len(flat)} degenerate triangle(s) (zero area relative to the squared diameter, "
+                         f"or repeated vertices), e.g. element {k} with vertices {corners}")
 
 
 def _fail(obj, field: str, value: Any, what: str):

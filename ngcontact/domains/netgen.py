@@ -1,6 +1,7 @@
 """Domains given by a netgen geometry, a mesh file or a mesh: levels by ``netgen.meshing.Mesh.Refine``."""
 from __future__ import annotations
 
+import gzip
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -164,6 +165,7 @@ class MeshFileDomain(_NetgenDomain):
         return f"mesh file {Path(self.path).name}"
 
     def _coarse(self):
+        _check_vol_file(self.path)
         mesh = ngm.Mesh(dim=2)
         try:
             mesh.Load(str(self.path))
@@ -172,6 +174,41 @@ class MeshFileDomain(_NetgenDomain):
         check_triangular(mesh, f"MeshFileDomain.path {str(self.path)!r}")
         mesh.SetGeometry(ngm.NetgenGeometry() if self.geometry is None else self.geometry)
         return mesh
+
+
+def _check_vol_file(path) -> None:
+    """ValueError for a netgen .vol / .vol.gz file whose points or surface elements are cut off or whose elements
+    refer to points it does not have: ``netgen.meshing.Mesh.Load`` reads such files past their end (a crash of the
+    process, no message).  Other files are left to netgen."""
+    name = str(path)
+    if not name.endswith((".vol", ".vol.gz")):
+        return
+    where = f"MeshFileDomain.path {name!r}"
+    with (gzip.open(name, "rt") if name.endswith(".gz") else open(name)) as fh:
+        lines = fh.read().splitlines()
+    sections = {}
+    for i, line in enumerate(lines):
+        key = line.strip()
+        if key == "points" or key.startswith("surfaceelements"):
+            try:
+                n = int(lines[i + 1].split()[0])
+                rows = [lines[i + 2 + k].split() for k in range(n)]
+            except (IndexError, ValueError):
+                raise ValueError(f"{where}: the section '{key}' (line {i + 1}) is cut off or malformed") from None
+            sections.setdefault("points" if key == "points" else "elements", []).append((i + 1, rows))
+    if "points" not in sections:
+        raise ValueError(f"{where}: no 'points' section (a cut-off or non-netgen .vol file)")
+    npoints = len(sections["points"][0][1])
+    for line_no, rows in sections.get("elements", []):
+        for k, row in enumerate(rows):
+            try:
+                nodes = [int(v) for v in row[5:5 + int(row[4])]]
+            except (IndexError, ValueError):
+                raise ValueError(f"{where}: element {k} of the section at line {line_no} is malformed: "
+                                 f"{' '.join(row)!r}") from None
+            if len(nodes) < 3 or min(nodes) < 1 or max(nodes) > npoints:
+                raise ValueError(f"{where}: element {k} of the section at line {line_no} refers to points "
+                                 f"{nodes} (the file has {npoints} points)")
 
 
 @dataclass(frozen=True)

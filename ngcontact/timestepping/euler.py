@@ -134,10 +134,9 @@ class BackwardEuler:
 
         the same residuals and gaps, without the cancellation of blockdiag(M) X^{n-1} / dt in E X - F^n: the
         right-hand side is what drives the step (zero at a stationary state), so the Newton loop's relative
-        residual test is in its units whatever dt and whatever constant u carries.  With F^n as the divisor, a
-        step with dt = 1e-12 passed the test at its start (X^{n-1}, multiplier 0; the load-driven part of the
-        residual is 1e-12 of F^n), and the round-off of the cancellation (1e-16 ||M X / dt||) bounded the
-        accuracy of the multiplier from dt ~ 1e-8 on."""
+        residual test is in its units whatever dt and whatever constant u carries.  F^n itself would be a divisor
+        of size 1/dt (the load-driven part of the residual is dt ||F^n||), and the cancellation leaves round-off
+        of 1e-16 ||M X^{n-1} / dt|| in the residual of X."""
         F = self.load(t) - self.K @ x_prev
         b = -system.gap(x_prev)
         return ComplementaritySystem(system.K, F, system.up, system.lo, b, system.D, solver=system.solver)

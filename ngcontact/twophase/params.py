@@ -98,6 +98,10 @@ class TwoPhaseParams:
         for name in ("q_inject", "t_inject", "chi_right"):
             if getattr(self, name) < 0:
                 raise ValueError(f"parameter {name} must be >= 0, got {getattr(self, name)!r}")
+        chi_sat = self.h_mass * self.p_right / self.beta_l  # dissolved mole fraction at solubility at p_right
+        if self.chi_right > chi_sat:
+            raise ValueError(f"parameter chi_right must be <= H p_right / beta_l = {chi_sat:.4g} (the right boundary "
+                             f"is liquid-saturated: dissolved hydrogen at most at solubility), got {self.chi_right!r}")
         if not 0 < self.eps_reg < 0.5:
             raise ValueError(f"parameter eps_reg must be in (0, 0.5), got {self.eps_reg!r}")
 
