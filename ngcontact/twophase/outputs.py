@@ -55,6 +55,9 @@ def benchmark_quantities(run: TwoPhaseRun) -> dict:
     out["dt_cuts"] = int(sum(r.dt_cuts for r in rows))
     out["max_water_defect_rel"] = float(max(r.water_defect_rel for r in rows))
     out["max_h2_defect_rel"] = float(max(r.h2_defect_rel for r in rows))
+    for c in ("water", "h2"):
+        vals = [getattr(r, f"{c}_defect_flux") for r in rows if np.isfinite(getattr(r, f"{c}_defect_flux"))]
+        out[f"max_{c}_defect_flux"] = float(max(vals)) if vals else float("nan")
     out["min_S_minus_Slr"] = float(min(r.min_S_minus_Slr for r in rows))
     out["max_S_minus_1"] = float(max(r.max_S_minus_1 for r in rows))
     out["min_chi"] = float(min(r.min_chi for r in rows))

@@ -22,9 +22,14 @@ __all__ = ["run_h2", "check_options", "TwoPhaseRun", "StepRow", "NEWTON_MODES", 
 
 NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive")
 
-#: columns of steps.csv (units in the names; *_rel: relative to the component's mass in the domain)
+#: columns of steps.csv (units in the names; *_defect_rel: the step's mass-balance defect relative to the component's
+#: mass in the domain, or to the mass that crossed the boundary in the step if that is larger (no hydrogen in the
+#: domain yet); *_defect_flux: relative to the mass that crossed the boundary in the step (injected + flowed out;
+#: nan if that is below 1e-9 of the mass in the domain): the defect of the step itself, which a large mass in the
+#: domain hides in *_defect_rel)
 STEP_COLUMNS = ("step", "t_years", "dt_years", "newton_its", "gmres_its", "dt_cuts", "gas_end_m", "S_0", "P_0_Pa",
-                "Pg_0_Pa", "chi_0", "water_defect_rel", "h2_defect_rel", "min_S_minus_Slr", "max_S_minus_1",
+                "Pg_0_Pa", "chi_0", "water_defect_rel", "h2_defect_rel", "water_defect_flux", "h2_defect_flux",
+                "min_S_minus_Slr", "max_S_minus_1",
                 "min_chi", "eta_sp_w", "eta_sp_h", "eta_tm_w", "eta_tm_h", "eta_lin_w", "eta_lin_h", "eta_alg_w",
                 "eta_alg_h", "time_s")
 
@@ -63,6 +68,8 @@ class StepRow:
     eta_lin_h: float = float("nan")
     eta_alg_w: float = float("nan")
     eta_alg_h: float = float("nan")
+    water_defect_flux: float = float("nan")
+    h2_defect_flux: float = float("nan")
     time_s: float = 0.0
 
     def values(self):
@@ -194,13 +201,17 @@ def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: 
             x, t = res.x, t + dt
         M = disc.masses(x)
         inflow = prm.injection_rate(t_start, t) * (t - t_start)
-        defect = M - M_prev - np.array([0.0, inflow]) + outflow
+        defect = np.abs(M - M_prev - np.array([0.0, inflow]) + outflow)
+        crossed = np.array([0.0, inflow]) + np.abs(outflow)  # mass through the boundary in the step, per component
+        rel = defect / np.maximum(np.maximum(M, crossed), np.finfo(float).tiny)
+        seen = crossed > 1e-9 * M  # through the boundary: above the round-off of the masses (else nan)
+        flux = np.where(seen, defect / np.where(seen, crossed, 1.0), np.nan)
         s, p, chi = disc.split(x)
         pc, _ = disc.laws.pc(s[:1])
         row = StepRow(step, t / YEAR, (t - t_start) / YEAR, its, gits, cuts, gas_end(disc, x), float(s[0]),
-                      float(p[0]), float(p[0] + pc[0]), float(chi[0]), float(abs(defect[0]) / M[0]),
-                      float(abs(defect[1]) / max(M[1], np.finfo(float).tiny)), float(s.min() - prm.s_lr),
-                      float(s.max() - 1.0), float(chi.min()), time_s=time.perf_counter() - t0, **eta)
+                      float(p[0]), float(p[0] + pc[0]), float(chi[0]), float(rel[0]), float(rel[1]),
+                      float(s.min() - prm.s_lr), float(s.max() - 1.0), float(chi.min()), water_defect_flux=float(flux[0]),
+                      h2_defect_flux=float(flux[1]), time_s=time.perf_counter() - t0, **eta)
         rows.append(row)
         M_prev = M
         for tp in wanted:
