@@ -210,8 +210,9 @@ def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: 
         pc, _ = disc.laws.pc(s[:1])
         row = StepRow(step, t / YEAR, (t - t_start) / YEAR, its, gits, cuts, gas_end(disc, x), float(s[0]),
                       float(p[0]), float(p[0] + pc[0]), float(chi[0]), float(rel[0]), float(rel[1]),
-                      float(s.min() - prm.s_lr), float(s.max() - 1.0), float(chi.min()), water_defect_flux=float(flux[0]),
-                      h2_defect_flux=float(flux[1]), time_s=time.perf_counter() - t0, **eta)
+                      float(s.min() - prm.s_lr), float(s.max() - 1.0), float(chi.min()),
+                      water_defect_flux=float(flux[0]), h2_defect_flux=float(flux[1]), time_s=time.perf_counter() - t0,
+                      **eta)
         rows.append(row)
         M_prev = M
         for tp in wanted:
