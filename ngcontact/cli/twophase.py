@@ -105,7 +105,8 @@ def cmd_run_twophase(scene, args, argv) -> int:
           f"{q['P_peak_years']:g} y; Pg peak {q['Pg_peak_Pa'] / 1e6:.4f} MPa at {q['Pg_peak_years']:g} y; "
           f"gas gone {q['gas_gone_years']} y")
     print(f"  max mass-balance defects per step: water {q['max_water_defect_rel']:.1e}, H2 "
-          f"{q['max_h2_defect_rel']:.1e} (relative to the mass in the domain); water {q['max_water_defect_flux']:.1e}, H2 "
+          f"{q['max_h2_defect_rel']:.1e} (relative to the mass in the domain); "
+          f"water {q['max_water_defect_flux']:.1e}, H2 "
           f"{q['max_h2_defect_flux']:.1e} (relative to the mass through the boundary in the step)")
     listed = ", ".join(n for n in files if n.endswith((".csv", ".json"))) + ("" if args.no_plots else ", *.png")
     print(f"outputs: {directory.path}/ ({listed})")
