@@ -263,3 +263,11 @@ def test_defects_without_hydrogen_in_the_domain_are_finite():
     run = run_h2(cells=20, dt_years=1e-4, t_final_years=3e-4, estimate=False)
     for r in run.rows:
         assert r.h2_defect_rel <= 1e-6 and r.h2_defect_flux <= 1e-6
+
+
+def test_step_below_the_tolerance_is_a_named_stop():
+    """dt = 1e-7 years: the injection per step is ~1e-12 of a cell's reference mass, below 0.1 tol, so Newton takes
+    no step; the step's mass balance (the injected hydrogen is not in the domain) stops the run with a named reason."""
+    run = run_h2(cells=50, dt_years=1e-7, t_final_years=1e-6, estimate=False)
+    assert not run.completed
+    assert "mass balance not resolved" in run.log[-1] and "H2 defect is 1 of the hydrogen injected" in run.log[-1]

@@ -232,7 +232,8 @@ def _report(out, solver, gam, reg, ref, quick, check):
          "Parameters: `ngcontact/twophase/params.py` defaults (mu_g = 9e-6 Pa s, T = 303 K, chi = 0 at x = L, "
          "eps_reg = 1e-4, 1 year = 365.25 d). Values \"at x = 0\" are those of the first cell (centre h/2); "
          "times are step times (resolution dt). Newton tolerance ||Phi|| <= 1e-8 in scaled rows (pore-volume "
-         "fraction per cell and step; the round-off floor of the 1000-cell system is ~1e-10).", ""]
+         "fraction per cell and step; the round-off floor of the 1000-cell system is ~1e-10), times the step's "
+         "starting residual where that is below 1 (at least 0.1: `TwoPhaseStep.scale`).", ""]
     L += ["## Benchmark quantities at x = 0, Newton-min, direct LU, 1000 cells, dt = 5000 years", ""]
     q = exact["q"]
     L.append(_table(["quantity", "computed", "benchmark spread (REFERENCE.md)"],

@@ -21,6 +21,8 @@ from .params import YEAR, TwoPhaseParams
 __all__ = ["run_h2", "check_options", "TwoPhaseRun", "StepRow", "NEWTON_MODES", "STEP_COLUMNS", "ITERATE_COLUMNS"]
 
 NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive")
+#: a step whose hydrogen defect exceeds this fraction of the hydrogen injected in it stops the run (named)
+UNRESOLVED = 0.5
 
 #: columns of steps.csv (units in the names; *_defect_rel: the step's mass-balance defect relative to the component's
 #: mass in the domain, or to the mass that crossed the boundary in the step if that is larger (no hydrogen in the
@@ -206,6 +208,13 @@ def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: 
         rel = defect / np.maximum(np.maximum(M, crossed), np.finfo(float).tiny)
         seen = crossed > 1e-9 * M  # through the boundary: above the round-off of the masses (else nan)
         flux = np.where(seen, defect / np.where(seen, crossed, 1.0), np.nan)
+        if inflow > 0 and defect[1] > UNRESOLVED * inflow:  # the injected hydrogen is not in the domain: the solve
+            # did not see it (a defect against the outflow alone is what the adaptive stop leaves, e.g. gamma_lin 0.1)
+            log.append(f"step {step}: mass balance not resolved at t = {t / YEAR:.6g} y: the H2 defect is "
+                       f"{defect[1] / inflow:.2g} of the hydrogen injected in the step "
+                       f"(dt = {(t - t_start) / YEAR:.4g} y is below what the Newton tolerance {tol:g} resolves)")
+            say("  " + log[-1])
+            return TwoPhaseRun(prm, disc, rows, profiles, x, log, completed=False, iterates=iterates)
         s, p, chi = disc.split(x)
         pc, _ = disc.laws.pc(s[:1])
         row = StepRow(step, t / YEAR, (t - t_start) / YEAR, its, gits, cuts, gas_end(disc, x), float(s[0]),
