@@ -338,6 +338,15 @@ def test_contact_area_in_the_units_of_the_gap():
     assert areas[0][0] > 0.1 and np.allclose(areas[1], areas[0], rtol=1e-6)
 
 
+def test_summary_states_the_steps_taken():
+    """--t-final below dt: one step of t_final; the summary keeps the requested dt and states the steps taken."""
+    sc = load_scene("parabolic_manufactured")
+    r, _, _ = run_parabolic_scene(sc, dict(dt=0.05, t_final=0.01, level=0))
+    s = r.summary
+    assert s["steps"] == 1 and s["dt"] == 0.05
+    assert s["dt_min_used"] == s["dt_max_used"] == pytest.approx(0.01)
+
+
 def test_step_cap_is_a_named_stop():
     sc = load_scene("parabolic_manufactured")
     r, _, _ = run_parabolic_scene(sc, dict(dt=0.05, t_final=0.3, level=0, max_steps=2))

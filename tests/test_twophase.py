@@ -88,8 +88,12 @@ def test_parameter_errors_name_the_field(field, value):
 
 
 def test_run_option_errors():
-    with pytest.raises(ValueError, match="option dt_years must be > 0, got -1"):
+    with pytest.raises(ValueError, match="option dt_years must be a finite number > 0, got -1"):
         run_h2(dt_years=-1)
+    with pytest.raises(ValueError, match="option dt_years must be a finite number > 0, got inf"):
+        run_h2(dt_years=float("inf"))
+    with pytest.raises(ValueError, match=r"option dt_years = 0.001 gives 1e\+09 steps .* \(at most 1e\+06\)"):
+        run_h2(dt_years=1e-3, t_final_years=1e6)
     with pytest.raises(ValueError, match="option cells"):
         run_h2(cells=1)
     with pytest.raises(ValueError, match="option newton"):

@@ -280,7 +280,9 @@ def run_parabolic(problem, mesh, options: ParabolicOptions = ParabolicOptions(),
         res.converged = False
         res.failures.append(f"max_steps: {n} steps (max_steps = {o.max_steps}) reached at t = {t:.6g} < T = {T:.6g}")
     res.x, res.y = x, y
-    s = {"t_final": t, "steps": n, "dt": o.dt, "order": o.order, "newton": o.newton, "cfun": o.cfun,
+    dts = [r["dt"] for r in res.rows]
+    s = {"t_final": t, "steps": n, "dt": o.dt, "dt_min_used": min(dts, default=float("nan")),
+         "dt_max_used": max(dts, default=float("nan")), "order": o.order, "newton": o.newton, "cfun": o.cfun,
          "adaptive_dt": o.adaptive_dt, "nelem": mesh.ne, "ndof": disc.ndof, "newton_total": cum["newton"],
          "gmres_total": cum["gmres"], "factorizations_total": cum["fact"], "rejected_steps": cum["rejected"],
          "converged": res.converged, "time_total_s": time.perf_counter() - t_start}

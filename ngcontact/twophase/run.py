@@ -21,6 +21,8 @@ from .params import YEAR, TwoPhaseParams
 __all__ = ["run_h2", "check_options", "TwoPhaseRun", "StepRow", "NEWTON_MODES", "STEP_COLUMNS", "ITERATE_COLUMNS"]
 
 NEWTON_MODES = ("direct", "gmres", "inexact", "adaptive")
+#: most steps a run may take (t_final / dt)
+MAX_STEPS = 1e6
 #: a step whose hydrogen defect exceeds this fraction of the hydrogen injected in it stops the run (named)
 UNRESOLVED = 0.5
 
@@ -127,7 +129,10 @@ def check_options(cells=1000, dt_years=5000.0, t_final_years=1e6, newton="direct
             raise ValueError(f"option {name} must be a positive integer, got {v!r}")
     for name, v in (("dt_years", dt_years), ("t_final_years", t_final_years)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
-            raise ValueError(f"option {name} must be > 0, got {v!r}")
+            raise ValueError(f"option {name} must be a finite number > 0, got {v!r}")
+    if t_final_years / dt_years > MAX_STEPS:
+        raise ValueError(f"option dt_years = {dt_years!r} gives {t_final_years / dt_years:.3g} steps to t_final_years = "
+                         f"{t_final_years!r} (at most {MAX_STEPS:.0e})")
     if newton not in NEWTON_MODES:
         raise ValueError(f"option newton must be one of {NEWTON_MODES}, got {newton!r}")
 
