@@ -131,8 +131,8 @@ def check_options(cells=1000, dt_years=5000.0, t_final_years=1e6, newton="direct
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
             raise ValueError(f"option {name} must be a finite number > 0, got {v!r}")
     if t_final_years / dt_years > MAX_STEPS:
-        raise ValueError(f"option dt_years = {dt_years!r} gives {t_final_years / dt_years:.3g} steps to t_final_years = "
-                         f"{t_final_years!r} (at most {MAX_STEPS:.0e})")
+        raise ValueError(f"option dt_years = {dt_years!r} gives {t_final_years / dt_years:.3g} steps to "
+                         f"t_final_years = {t_final_years!r} (at most {MAX_STEPS:.0e})")
     if newton not in NEWTON_MODES:
         raise ValueError(f"option newton must be one of {NEWTON_MODES}, got {newton!r}")
 
