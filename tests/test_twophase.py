@@ -275,3 +275,15 @@ def test_step_below_the_tolerance_is_a_named_stop():
     run = run_h2(cells=50, dt_years=1e-7, t_final_years=1e-6, estimate=False)
     assert not run.completed
     assert "mass balance not resolved" in run.log[-1] and "H2 defect is 1 of the hydrogen injected" in run.log[-1]
+
+
+def test_certificate_names_the_pair_functions():
+    """The two-phase certificate says which of its pair fails in its own terms (not 'negative multiplier')."""
+    prm = TwoPhaseParams()
+    disc = TwoPhaseFV(prm, interval_mesh(prm.length, 8))
+    x = initial_state(prm, disc.mesh)
+    system = disc.step_system(x, 0.0, 5000 * YEAR)
+    bad = x.copy()
+    bad[2::3] = 1.0  # dissolved mole fraction far above solubility: b < 0
+    text = system.certificate(bad, system.y0, 1e-7).failure()
+    assert "dissolved H2 above solubility (b < 0)" in text and "multiplier" not in text

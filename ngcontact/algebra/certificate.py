@@ -38,6 +38,8 @@ class Certificate:
     negativity: float
     slackness: float
     tol: float
+    #: what the three measure, in the words of :meth:`failure` (a nonlinear pair names its own functions)
+    names: tuple = ("penetration", "negative multiplier", "slackness")
 
     @property
     def valid(self) -> bool:
@@ -45,13 +47,13 @@ class Certificate:
 
     def failure(self) -> str:
         """What fails, in words ('' if valid)."""
-        bad = [f"{name} {v:.1e}" for name, v in (("penetration", self.penetration),
-                                                  ("negative multiplier", self.negativity),
-                                                  ("slackness", self.slackness)) if not v <= self.tol]
+        bad = [f"{name} {v:.1e}" for name, v in zip(self.names, (self.penetration, self.negativity, self.slackness))
+               if not v <= self.tol]
         return "" if not bad else "certificate not met (relative " + ", ".join(bad) + f" > {self.tol:.0e})"
 
     def as_dict(self) -> dict:
         d = asdict(self)
+        d.pop("names")
         d["valid"] = self.valid
         return d
 
@@ -64,17 +66,19 @@ def _osc(v) -> float:
     return float(np.max(v) - np.min(v)) if len(v) else 0.0
 
 
-def pair_certificate(a: np.ndarray, b: np.ndarray, A: float, B: float, tol: float) -> Certificate:
-    """The certificate of a >= 0, b >= 0, a . b = 0 with a measured relative to A and b relative to B."""
+def pair_certificate(a: np.ndarray, b: np.ndarray, A: float, B: float, tol: float,
+                     names: tuple = Certificate.names) -> Certificate:
+    """The certificate of a >= 0, b >= 0, a . b = 0 with a measured relative to A and b relative to B (``names``:
+    the words of its failure message for negative a, negative b, both positive)."""
     tiny = np.finfo(float).tiny
     if not len(a):
-        return Certificate(0.0, 0.0, 0.0, tol)
+        return Certificate(0.0, 0.0, 0.0, tol, names)
     A, B = max(A, tiny), max(B, tiny)
     pen = max(0.0, float(np.max(-a))) / A
     neg = max(0.0, float(np.max(-b))) / B
     slack = float(np.max(np.minimum(np.maximum(a, 0.0) / A, np.maximum(b, 0.0) / B)))
     vals = [v if np.isfinite(v) else float("inf") for v in (pen, neg, slack)]
-    return Certificate(*vals, tol)
+    return Certificate(*vals, tol, names)
 
 
 def certificate(system, x: np.ndarray, y: np.ndarray, tol: float) -> Certificate:

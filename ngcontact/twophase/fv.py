@@ -297,4 +297,6 @@ class TwoPhaseStep(NonlinearComplementaritySystem):
         pc, _ = self.disc.laws.pc(s)
         terms = (b, self.prm.h_mass * (p + pc), self.prm.beta_l * chi)
         unit = max(float(np.max(np.abs(v), initial=0.0)) for v in terms)
-        return pair_certificate(a, b, max(float(np.max(np.abs(a), initial=0.0)), 1.0), unit, tol)
+        return pair_certificate(a, b, max(float(np.max(np.abs(a), initial=0.0)), 1.0), unit, tol,
+                                names=("saturation S > 1", "dissolved H2 above solubility (b < 0)",
+                                       "gas (S < 1) with dissolved H2 below solubility (b > 0)"))
