@@ -287,3 +287,15 @@ def test_certificate_names_the_pair_functions():
     bad[2::3] = 1.0  # dissolved mole fraction far above solubility: b < 0
     text = system.certificate(bad, system.y0, 1e-7).failure()
     assert "dissolved H2 above solubility (b < 0)" in text and "multiplier" not in text
+
+
+def test_cli_names_profiles_that_no_step_reaches(tmp_path, capsys):
+    """dt = 3000 years does not end a step at the default profile time 2e4 years: the CLI says which are missing
+    instead of leaving them out silently."""
+    from ngcontact.cli import main
+
+    out = tmp_path / "h2"
+    assert main(["run", "h2_storage", "--cells", "20", "--dt-years", "3000", "--t-final-years", "2.4e4", "--out",
+                 str(out), "-q", "--no-plots"]) == 0
+    err = capsys.readouterr().err
+    assert "note: no profile at t = 20000 years: no step ends there with dt = 3000 years" in err

@@ -92,6 +92,10 @@ def cmd_run_twophase(scene, args, argv) -> int:
         print(f"ngcontact: the run stopped at t = {run.rows[-1].t_years if run.rows else 0:g} years; nothing written",
               file=sys.stderr)
         return 3
+    missing = [tp for tp in profile if float(tp) not in run.profiles]
+    if missing:  # the profiles are the states at step ends
+        print(f"ngcontact: note: no profile at t = {', '.join(f'{tp:g}' for tp in missing)} years: no step ends there "
+              f"with dt = {opts['dt_years']:g} years", file=sys.stderr)
     files = run_files(run, dict(opts, argv=["ngcontact", *argv]), case=scene.name)
     with tempfile.TemporaryDirectory() as td:  # plots drawn before anything is written
         pngs = {} if args.no_plots else {n: (Path(td) / n).read_bytes()
