@@ -168,11 +168,20 @@ class RunOptions:
     @classmethod
     def for_scene(cls, scene, **given) -> "RunOptions":
         """Scene defaults, overridden by explicitly given (non-None) options."""
-        opts = {**scene.defaults, **{k: v for k, v in given.items() if v is not None}}
+        explicit = {k: v for k, v in given.items() if v is not None}
+        opts = {**scene.defaults, **explicit}
         unknown = set(opts) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"unknown option(s) {sorted(unknown)} in scene {scene.name} DEFAULTS")
-        return cls(**opts)
+        try:
+            return cls(**opts)
+        except ValueError as exc:  # say where a value that did not come from the caller came from
+            text = str(exc)
+            names = [k for k in scene.defaults if k not in explicit
+                     and (f"option {k} " in text or f"--{k.replace('_', '-')} " in text)]
+            if names:
+                raise ValueError(f"{text} (from the DEFAULTS of scene {scene.name})") from None
+            raise
 
 
 def _estimable() -> list:

@@ -337,3 +337,17 @@ def test_table_and_plot_commands_read_run_directories(tmp_path, capsys):
     assert png.read_bytes()[:4] == b"\x89PNG"
     assert main(["table", str(tmp_path)]) == 2
     assert "is not a run directory" in capsys.readouterr().err
+
+
+def test_error_in_scene_defaults_names_the_scene(tmp_path, monkeypatch, capsys):
+    """An invalid value in a scene's DEFAULTS is reported with where it came from (not as if typed on the
+    command line); the same option given on the command line overrides it."""
+    from ngcontact.cli import main
+
+    (tmp_path / "s_def.py").write_text("from ngcontact import CrissCrossSquare, TwoMembraneProblem\n"
+                                       "problem = TwoMembraneProblem(domain=CrissCrossSquare(n0=4), f1=1.0, f2=0.0)\n"
+                                       "DEFAULTS = dict(order=7)\n")
+    monkeypatch.setenv("NGCONTACT_CASES", str(tmp_path))
+    assert main(["run", "s_def", "--out", str(tmp_path / "a")]) == 2
+    assert "got 7 (from the DEFAULTS of scene s_def)" in capsys.readouterr().err
+    assert main(["run", "s_def", "--order", "1", "--levels", "1", "-q", "--no-vtk", "--out", str(tmp_path / "b")]) == 0
