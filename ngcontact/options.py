@@ -177,9 +177,8 @@ class RunOptions:
             return cls(**opts)
         except ValueError as exc:  # say where a value that did not come from the caller came from
             text = str(exc)
-            names = [k for k in scene.defaults if k not in explicit
-                     and (f"option {k} " in text or f"--{k.replace('_', '-')} " in text)]
-            if names:
+            if any(k not in explicit and (f"option {k} " in text or f"--{k.replace('_', '-')} " in text)
+                   for k in scene.defaults):
                 raise ValueError(f"{text} (from the DEFAULTS of scene {scene.name})") from None
             raise
 

@@ -187,6 +187,7 @@ class TwoPhaseStep(NonlinearComplementaritySystem):
         self.weights = disc.w_ref[:, None] * self.mesh.volume[None, :] / self.dt  # row scaling (2, N)
         self.n = len(self.x_prev)
         self.y0 = np.zeros(0)
+        self._scale = None  # scale(), computed at its first call
 
     # --- unscaled conservation residual [kg/s] and its Jacobian blocks
     def _conservation(self, x, jac: bool):
@@ -283,7 +284,7 @@ class TwoPhaseStep(NonlinearComplementaritySystem):
         reference mass, below the absolute tolerance 1e-8, so that test held at the start (no Newton step, no
         hydrogen injected).  Steps whose driving terms are below even 0.1 tol are caught by the mass balance of
         :func:`~ngcontact.twophase.run.run_h2`."""
-        if getattr(self, "_scale", None) is None:
+        if self._scale is None:
             r0 = float(np.linalg.norm(self.residual(self.x_prev)))
             self._scale = min(1.0, max(r0, self.SCALE_FLOOR)) if np.isfinite(r0) else 1.0
         return self._scale
