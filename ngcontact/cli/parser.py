@@ -93,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "estimators); the GMRES modes: fem only; multigrid (CG + multigrid to a tenth of the Newton "
                         "tolerance: truncated geometric multigrid on nested P1 levels of the box domains, else "
                         "algebraic multigrid; small levels are factorized), multigrid-inexact (the same with a "
-                        "forcing term): fem")
+                        "forcing term): fem; two-phase scenes: direct, gmres, inexact, adaptive")
     r.add_argument("--krylov", choices=["gmres", "cg"],
                    help="with --newton gmres|inexact|adaptive: the Krylov method, gmres (restarted GMRES + ILU, "
                         "[JSC20], default) or cg (CG + multigrid: geometric on nested P1 levels, else algebraic)")
