@@ -61,7 +61,8 @@ class Trial:
     """The full Newton iterate of one step, the linear-solve time and the record fields the strategy measured.
     ``provisional``: the point is not the solution of the step's linearization (a relaxed iterate,
     :mod:`.multigrid`); the loop stops at it only by the residual test at the point and its certificate (not by the
-    other tests of a stopping rule), else the next step starts from it.  ``residual``: K x - B^T D y - F
+    other tests of a stopping rule), and only where ``may_stop`` (the strategy's own test of the point), else the
+    next step starts from it.  ``residual``: K x - B^T D y - F
     at (x, y) where the strategy has computed it for its own tests (the loop's merit takes it instead of forming
     it again), else None."""
 
@@ -71,6 +72,7 @@ class Trial:
     fields: dict
     provisional: bool = False
     residual: Optional[np.ndarray] = None
+    may_stop: bool = True
 
 
 # ---------------------------------------------------------------- direct solves

@@ -191,7 +191,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
             continue
         # a provisional point (a relaxed iterate, not the solution of a linearization) stops the loop by the residual
         # test at the point itself and its certificate only, never by the other tests of a rule (balanced, adaptive)
-        done = (ResidualStop() if trial.provisional else stop).check(rec, options.tol)
+        done = None if not trial.may_stop else (ResidualStop() if trial.provisional else stop).check(rec, options.tol)
         if done is not None and certified(done):
             return result(True, done, k)
     else:
