@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ngcontact.cli import main
@@ -63,6 +64,9 @@ def _failing_level(monkeypatch, exc, at=2):
     (MemoryError(), "out of memory (MemoryError) during level 2"),
     (RuntimeError("boom\nsecond line"), "internal error: RuntimeError: boom second line during level 2"),
     (type("NgException", (Exception,), {})("no field of name x"), "NGSolve error (NgException): no field of name x"),
+    # a ValueError subclass, but a failure of the numerics, not bad input (exit 2 before stop 48)
+    (np.linalg.LinAlgError("2-th leading minor not positive definite"),
+     "internal error: LinAlgError: 2-th leading minor not positive definite during level 2"),
 ])
 def test_resources_and_internal_errors_exit_4_and_keep_the_finished_levels(exc, words, monkeypatch, tmp_path, capsys):
     _failing_level(monkeypatch, exc)

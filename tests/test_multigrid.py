@@ -3,10 +3,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from ngsolve import GridFunction
 
 from ngcontact.algebra.linalg import SPDSolver, pcg
-from ngcontact.algebra.multigrid import Multigrid, _truncated
+from ngcontact.algebra.multigrid import Multigrid, _DenseCholesky, _truncated
 from ngcontact.algebra.system import LINEAR_PATHS
 from ngcontact.discretizations.fem import FEMDiscretization
 from ngcontact.drivers import RunOptions, run_scene
@@ -535,3 +536,24 @@ def test_split_coupled_iterate_is_the_coupled_steps_recover_bitwise(cfun):
     if cfun == "min":
         assert np.array_equal(ms._active(w_free, ws, w_eq, lin), np.less_equal(*s.pair(xr, yr)))
         assert len(lin.eq_rows) and not np.array_equal(full, xr)  # the reset mattered
+
+
+def test_a_semidefinite_truncated_coarse_matrix_is_solved_by_its_pseudo_inverse():
+    """A flat obstacle pressed on everywhere but in one small well: on level 2 (4225 unknowns) a handful of nodes
+    are free, more truncated coarse functions survive than they can tell apart, and the coarsest matrix is only
+    semidefinite -- its Cholesky factorization failed and stopped the run (outside audit, stop 48).  The coarse
+    solve is then the pseudo-inverse: the multigrid run converges to the direct solution."""
+    from ngsolve import IfPos, x, y
+
+    from ngcontact import ObstacleProblem, StructuredSquare
+    from ngcontact.scenes import Scene
+
+    psi = -IfPos(0.02**2 - (x - 0.3)**2 - (y - 0.3)**2, 0.5 + 0 * x, 0 * x)
+    problem = ObstacleProblem(domain=StructuredSquare(n0=8), psi=psi, f=-1.0, g=0.0, name="holes")
+    scene = Scene(name="holes", path=None, problem=problem)
+    mg = run_scene(scene, RunOptions(levels=3, newton="multigrid"))
+    ref = run_scene(scene, RunOptions(levels=3))
+    assert mg.converged and all(r["certified"] == 1 for r in mg.rows)
+    assert np.abs(mg.x - ref.x).max() <= 1e-10 * np.abs(ref.x).max()
+    A = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))  # rank 1: b in its range is solved
+    assert np.allclose(A @ _DenseCholesky(A).solve(np.array([2.0, 2.0])), [2.0, 2.0])

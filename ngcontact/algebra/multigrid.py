@@ -295,17 +295,32 @@ class Multigrid:
 
 
 class _DenseCholesky:
-    """Dense Cholesky factorization of a small SPD matrix (the coarsest level)."""
+    """Dense Cholesky factorization of a small SPD matrix (the coarsest level).  A truncated coarse matrix may be
+    only semidefinite: where few fine unknowns are kept, more coarse functions survive than the kept unknowns can
+    tell apart (7 kept of 261,121 gave a 9 x 9 matrix of rank 7).  Then the coarse solve is the pseudo-inverse
+    (symmetric eigen-decomposition, eigenvalues below 1e-12 of the largest dropped): the V-cycle stays a symmetric
+    positive semidefinite correction, and with the smoothers a valid CG preconditioner."""
 
     def __init__(self, A: sp.spmatrix):
-        from scipy.linalg import cho_factor
+        from scipy.linalg import LinAlgError, cho_factor
 
-        self._c = cho_factor(A.toarray()) if A.shape[0] else None
+        self._c = self._pinv = None
+        if not A.shape[0]:
+            return
+        dense = A.toarray()
+        try:
+            self._c = cho_factor(dense)
+        except LinAlgError:
+            w, V = np.linalg.eigh(0.5 * (dense + dense.T))
+            keep = w > 1e-12 * max(float(w.max(initial=0.0)), np.finfo(float).tiny)
+            self._pinv = (V[:, keep] / w[keep]) @ V[:, keep].T
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         from scipy.linalg import cho_solve
 
-        return cho_solve(self._c, b) if self._c is not None else np.zeros(0)
+        if self._c is not None:
+            return cho_solve(self._c, b)
+        return self._pinv @ b if self._pinv is not None else np.zeros(0)
 
 
 class AlgebraicMultigrid:

@@ -15,6 +15,8 @@ import signal
 import sys
 import traceback
 
+import numpy as np
+
 from .parser import UsageError, build_parser
 from .report import cmd_list, cmd_plot, cmd_table, format_table
 from .run import DEFAULT_MAX_NDOF, RunStopped, Session, cmd_demo, cmd_run
@@ -75,6 +77,7 @@ _OUTCOMES = (
     (KeyboardInterrupt, 130, "interrupted (Ctrl-C)"),
     (_Terminated, 143, "terminated (SIGTERM)"),
     (MemoryError, 4, "out of memory (MemoryError)"),
+    (np.linalg.LinAlgError, 4, None),  # a ValueError, but a failure of the numerics, not of the input
     ((ValueError, FileNotFoundError), 2, None),
     (Exception, 4, None),
 )
