@@ -242,3 +242,23 @@ def test_a_relaxed_point_ends_the_loop_only_when_the_soft_membrane_is_solved_too
     m = len(ref.x) // 2
     for part in (slice(0, m), slice(m, 2 * m)):
         assert np.abs(mg.x[part] - ref.x[part]).max() <= 1e-10 * np.abs(ref.x[part]).max()
+
+
+class _Stuck(_SolutionStrategy):
+    """A strategy whose steps return the iterate they start from (a Krylov solve that stops at once because its
+    target lies below the round-off of the system)."""
+
+    def step(self, k, x, y, c, Ca, Cb, res_prev):
+        from ngcontact.newton.linear import Trial
+
+        return Trial(x.copy(), y.copy(), 0.0, {})
+
+
+def test_a_step_that_returns_its_start_stops_the_loop_with_a_named_reason():
+    """multigrid-inexact at a residual 1.6x the tolerance, below the round-off of the reduced system: every step
+    returned its start and the loop ran to its 200-step cap (outside audit, stop 48).  Now it stops at the first such
+    step and says why."""
+    s, x, y, xs, ys = _ex9_solution()
+    x1 = xs + 1e-9 * np.abs(xs).max()  # off the solution: the residual test fails there
+    res = semismooth_newton(s, x1 * s.data_scale(), ys * s.data_scale(), NewtonOptions(), linear=_Stuck(xs, ys))
+    assert not res.converged and res.iterations == 1 and "no progress at iteration 1" in res.reason

@@ -135,7 +135,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         t0 = time.perf_counter()
         Ca, Cb = system.chain(*cf.jacobian(*system.pair(x, y)))  # derivatives in the variables of newton_step
         trial = session.step(k, x, y, c, Ca, Cb, history[-1].res)
-        step, failed = 1.0, False
+        step, failed, unchanged = 1.0, False, False
         if line_search:
             step, (xt, yt, rt, ct, psit) = armijo_backtracking(merit, x, y, trial.x, trial.y, psi,
                                                                options.armijo, options.min_step)
@@ -143,6 +143,7 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
             if not failed:
                 x, y, r, c, psi = xt, yt, rt, ct, psit
         else:
+            unchanged = np.array_equal(trial.x, x) and np.array_equal(trial.y, y)
             x, y = trial.x, trial.y
             r, c, psi = merit(x, y, trial.residual)
         extra = session.after_step(k, x, y, step)
@@ -194,6 +195,10 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         done = None if not trial.may_stop else (ResidualStop() if trial.provisional else stop).check(rec, options.tol)
         if done is not None and certified(done):
             return result(True, done, k)
+        if unchanged:  # every further step would return it again
+            reason = f"no progress at iteration {k}: the step returned the iterate it started from"
+            reason += round_off_hint(rec.res, options.tol)
+            break
     else:
         failure = system.certificate(x, y, options.certificate_tol).failure()
         if failure and history[-1].res <= options.tol:
