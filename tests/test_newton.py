@@ -336,3 +336,24 @@ def test_reduced_right_hand_side_and_diagonal_by_indexing(scene_name):
     assert lin.slave_is_lo.any() == (scene_name == "test1")
     np.testing.assert_array_equal(lin.b, lin.Z.T @ (lin.rhs - s.K @ lin.x_aff))
     np.testing.assert_array_equal(lin.diagonal(), lin.A.diagonal())
+
+
+@pytest.mark.parametrize("factor", [1.0, 1e-8, 1e8])
+def test_a_load_free_obstacle_problem_converges(factor):
+    """f = 0, g = 0 and obstacle cones whose tips touch at nodes (outside audit, stop 48): ||F|| = 0, and the
+    relative residual ||Phi|| / ||F|| was ~1e291 at the solution -- every level 'not converged'.  The divisor is
+    then the force that holds the unknowns at the obstacle, ||K B^T b||: converged and certified at every scale."""
+    from ngsolve import IfPos, x, y
+
+    from ngcontact import ObstacleProblem, StructuredSquare
+    from ngcontact.drivers import RunOptions, run_scene
+    from ngcontact.scenes import Scene
+
+    def cone(cx, cy, h):
+        return h - 4 * (IfPos(x - cx, x - cx, cx - x) + IfPos(y - cy, y - cy, cy - y))
+
+    psi = factor * IfPos(cone(0.25, 0.25, 0.1) - cone(0.75, 0.5, 0.08), cone(0.25, 0.25, 0.1), cone(0.75, 0.5, 0.08))
+    problem = ObstacleProblem(domain=StructuredSquare(n0=8), psi=psi, f=0.0, g=0.0, name="cones")
+    run = run_scene(Scene(name="cones", path=None, problem=problem), RunOptions(levels=2))
+    assert run.converged and all(r["certified"] == 1 and r["newton_its"] <= 2 for r in run.rows)
+    assert np.abs(run.x).max() == pytest.approx(0.1 * factor, rel=1e-12)  # the higher tip, held there

@@ -205,8 +205,13 @@ class ComplementaritySystem:
         return self.constraint_weight * da, db
 
     def scale(self) -> float:
-        """Divisor of ||Phi|| in the Newton loop's relative residual: ||F||."""
-        return max(float(np.linalg.norm(self.F)), np.finfo(float).tiny)
+        """Divisor of ||Phi|| in the Newton loop's relative residual: ||F||; without loads (F = 0: an obstacle
+        problem driven by its obstacle alone) the force that holds the unknowns at the constraint values,
+        ||K B^T b||, so that the relative residual is not divided by zero."""
+        f = float(np.linalg.norm(self.F))
+        if f == 0.0 and np.any(self.b != 0):
+            f = float(np.linalg.norm(self.K @ (self._B.T @ self.b)))
+        return max(f, np.finfo(float).tiny)
 
     def data_scale(self) -> float:
         """The power of 2 nearest to the size of the data: ||F||_inf, else ||b||_inf times the constraint
