@@ -256,9 +256,10 @@ class _Stuck(_SolutionStrategy):
 
 def test_a_step_that_returns_its_start_stops_the_loop_with_a_named_reason():
     """multigrid-inexact at a residual 1.6x the tolerance, below the round-off of the reduced system: every step
-    returned its start and the loop ran to its 200-step cap (outside audit, stop 48).  Now it stops at the first such
-    step and says why."""
+    returned its start and the loop ran to its 200-step cap (outside audit, stop 48).  Now such a step counts as a
+    cycle of length one: the remedies are tried (Newton-FB with a line search, then Newton-min again), and the loop
+    stops within a few steps and says why."""
     s, x, y, xs, ys = _ex9_solution()
     x1 = xs + 1e-9 * np.abs(xs).max()  # off the solution: the residual test fails there
     res = semismooth_newton(s, x1 * s.data_scale(), ys * s.data_scale(), NewtonOptions(), linear=_Stuck(xs, ys))
-    assert not res.converged and res.iterations == 1 and "no progress at iteration 1" in res.reason
+    assert not res.converged and res.iterations <= 5 and "no progress at iteration" in res.reason, res.reason

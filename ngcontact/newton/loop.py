@@ -163,6 +163,8 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
             reason = f"non-finite residual at iteration {k}"
             break
         cycled = None if line_search or failed else guard.cycling(k, active, rec.res)
+        if cycled is None and unchanged:  # a cycle of length one: every further step would return it again
+            cycled = k - 1
         trouble = "stall" if failed else ("cycling" if cycled is not None else None)
         if trouble:
             code = guard.next_remedy(trouble)
@@ -172,13 +174,17 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
                 if failed:
                     reason = f"line search failed at iteration {k} (step < {options.min_step:.1e})"
                     reason += round_off_hint(rec.res, options.tol)
+                elif unchanged:
+                    reason = f"no progress at iteration {k}: the step returned the iterate it started from"
+                    reason += round_off_hint(rec.res, options.tol)
                 else:
                     reason = f"Newton-min cycles: the active set of iteration {k} is that of iteration {cycled}"
                 if guard.log:
                     reason += " (after the remedies: " + "; ".join(guard.log) + ")"
                 break
             rec.remedy = code
-            guard.note(k, code, "line search failed" if failed else f"active set of iteration {cycled} again")
+            guard.note(k, code, "line search failed" if failed else
+                       "no progress" if unchanged else f"active set of iteration {cycled} again")
             if code in (2, 3):
                 cf = get_cfunction("min" if code == 2 else "fb")
                 line_search = code == 3
@@ -195,10 +201,6 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         done = None if not trial.may_stop else (ResidualStop() if trial.provisional else stop).check(rec, options.tol)
         if done is not None and certified(done):
             return result(True, done, k)
-        if unchanged:  # every further step would return it again
-            reason = f"no progress at iteration {k}: the step returned the iterate it started from"
-            reason += round_off_hint(rec.res, options.tol)
-            break
     else:
         failure = system.certificate(x, y, options.certificate_tol).failure()
         if failure and history[-1].res <= options.tol:
