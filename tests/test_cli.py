@@ -295,17 +295,25 @@ def test_out_cannot_be_the_working_directory(tmp_path, monkeypatch, capsys):
     assert work.is_dir() and not list(work.iterdir())
 
 
-def test_line_search_stall_is_remedied_and_logged(tmp_path, capsys):
-    """HHO without condensation, Fischer-Burmeister, test 1 T1: the Armijo line search fails at ||Phi||/||F||
-    ~ 1e-10 (round-off floor of the full system); the loop continues with Newton-min steps (newton.safeguards),
-    converges, and says so on stderr and in summary.json."""
+def test_line_search_stall_is_remedied_and_logged(tmp_path, capsys, monkeypatch):
+    """HHO without condensation, Fischer-Burmeister, test 1 T1, with the factorization-reuse PCG stopping short
+    (rtol 1e-8: a fault injected here; until stop 48 PCG's loose round-off floor did this by itself): the Armijo
+    line search fails near ||Phi||/||F|| ~ 1e-10, the loop continues with Newton-min steps; a step that then returns
+    its start gets a fresh factorization (newton.safeguards); the run converges and says so on stderr and in
+    summary.json."""
+    import ngcontact.algebra.reuse as reuse
+
+    real = reuse.pcg
+    monkeypatch.setattr(reuse, "pcg", lambda A, b, M, x0=None, *, rtol=1e-12, **kw:
+                        real(A, b, M, x0, rtol=max(rtol, 1e-8), **kw))
     args = ["run", "test1", "--disc", "hho", "--cfun", "fb", "--no-condense", "--levels", "2", "-q", "--no-vtk",
             "--no-plots"]
     assert main(args + ["--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     assert "Newton safeguard, level 1: iteration" in err and "line search failed: switch to Newton-min" in err
+    assert "no progress: fresh factorization" in err
     summary = json.loads((tmp_path / "a" / "summary.json").read_text())
-    assert summary["safeguards"] and summary["final"]["certified"] == 1 and summary["final"]["newton_remedies"] == 1
+    assert summary["safeguards"] and summary["final"]["certified"] == 1 and summary["final"]["newton_remedies"] >= 1
 
 
 def test_test_flag_needs_test_options(tmp_path, capsys):
