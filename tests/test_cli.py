@@ -373,3 +373,30 @@ def test_tensions_far_apart_get_a_note_unless_decoupled(tmp_path, capsys, mu2, e
                 + extra) == 0
     err = capsys.readouterr().err
     assert ("are 1.0e+09 apart" in err and "--decouple" in err) == expected
+
+
+SINGULAR_BC_SCENE = textwrap.dedent('''
+    """Obstacle far below; g = r^(1/2) cos(theta/2) around (0.4, 0): singular inside the bottom edge."""
+    from ngsolve import atan2, cos, x, y
+    from ngcontact import CrissCrossSquare, ObstacleProblem
+
+    r2, th = (x - 0.4) ** 2 + y ** 2, atan2(y, x - 0.4)
+    problem = ObstacleProblem(domain=CrissCrossSquare(n0=4), psi=-10.0 + 0 * x, f=0.0, g=r2 ** 0.25 * cos(th / 2))
+    DEFAULTS = dict(order=2, levels=2)
+''')
+
+
+def test_unproven_bound_is_a_warning_and_a_caveat(tmp_path, capsys):
+    """Dirichlet data singular inside a boundary edge: the run succeeds, the CLI warns that eta is not a proven
+    bound on each level (naming the trace defect), history.csv has bound_proven = 0, summary.json the caveats."""
+    scene = tmp_path / "singular_bc.py"
+    scene.write_text(SINGULAR_BC_SCENE)
+    out = tmp_path / "sing"
+    assert main(["run", str(scene), "--estimate", "--out", str(out), "-q", "--no-vtk", "--no-plots"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("ngcontact: warning: level") == 2 and "trace defect indicator" in err
+    rows = list(csv.DictReader(open(out / "history.csv")))
+    assert [r["bound_proven"] for r in rows] == ["0", "0"]
+    assert float(rows[-1]["eta_trace"]) > 0.1 * float(rows[-1]["eta"])
+    caveats = json.loads((out / "summary.json").read_text())["caveats"]
+    assert len(caveats) == 2 and caveats[0].startswith("level 0: error bound eta not proven")

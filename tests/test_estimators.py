@@ -715,3 +715,58 @@ def test_strip_study_run_times_leave_out_the_exact_error_evaluations():
     rows = [{"time_cum_s": 1.0, "time_post_s": 0.25}, {"time_cum_s": 3.0, "time_post_s": 0.5},
             {"time_cum_s": 7.0, "time_post_s": 1.0}]
     assert run_times(rows) == [0.75, 2.25, 5.25]
+
+
+def _singular_boundary_data(x0: float):
+    """Obstacle problem far below u = r^{1/2} cos(theta/2) around (x0, 0) (harmonic, f = 0, no contact); g = u is
+    singular inside the bottom edge when x0 is not a mesh vertex."""
+    from ngsolve import CoefficientFunction, atan2, cos, sin
+    from ngcontact import ObstacleProblem
+
+    r2, th = (x - x0) ** 2 + y ** 2, atan2(y, x - x0)
+    u = r2 ** 0.25 * cos(th / 2)
+    grad_u = CoefficientFunction((0.5 * r2 ** -0.25 * cos(th / 2), 0.5 * r2 ** -0.25 * sin(th / 2)))
+    return ObstacleProblem(domain=CrissCrossSquare(n0=4), psi=-10.0 + 0 * x, f=0.0, g=u,
+                           exact=ExactSolution(u1=u, grad_u1=grad_u), name="singular_bc")
+
+
+def test_trace_defect_flags_dirichlet_data_singular_inside_an_edge():
+    """g singular inside a boundary edge (x0 = 0.4, not a vertex): the part g - Pi g that w_h leaves out is not
+    small, and the estimate says its bound is not proven (eta_trace > 0.1 eta; the outside audit's P3 run had
+    I_eff 0.79 there).  With the singular point at a vertex (x0 = 0.5) the trace is still (x - 0.5)_+^{1/2} on the
+    edges next to it: not proven either (the audit's runs there had I_eff >= 1.04, which the proof does not
+    cover).  Test 1's smooth data from level 1 on are proven; polynomial data have eta_trace = 0."""
+    out = {}
+    for x0 in (0.4, 0.5):
+        problem = _singular_boundary_data(x0)
+        disc = FEMDiscretization(problem, problem.domain.mesh(1), order=2)
+        sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
+        out[x0] = estimate(disc, sol.x, sol.y)
+    assert out[0.4].eta_trace > 0.1 * out[0.4].eta and not out[0.4].bound_proven
+    assert "not resolved on the boundary" in out[0.4].why_not_proven
+    assert out[0.4].summary()["bound_proven"] == 0
+    assert out[0.5].eta_trace > 0.1 * out[0.5].eta and not out[0.5].bound_proven
+    scene = load_scene("test1")
+    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(1), order=1)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
+    est = estimate(disc, sol.x, sol.y)
+    assert 0 < est.eta_trace <= 0.05 * est.eta and est.bound_proven and est.why_not_proven == ""
+    scene = load_scene("disk")  # polynomial Dirichlet data
+    disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=1)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
+    assert estimate(disc, sol.x, sol.y).eta_trace == 0.0
+
+
+def test_trace_defect_scales_with_the_data():
+    """eta_trace is in the units of eta: the singular data x 1e-8 and x 1e8 give eta_trace / eta of the baseline."""
+    from ngcontact.problems.manufactured import scale_problem
+
+    ratios = []
+    for scale in (1.0, 1e-8, 1e8):
+        problem = scale_problem(_singular_boundary_data(0.4), data=scale)
+        disc = FEMDiscretization(problem, problem.domain.mesh(0), order=1)
+        sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
+        est = estimate(disc, sol.x, sol.y)
+        ratios.append(est.eta_trace / est.eta)
+    assert ratios[0] > 0.1
+    assert max(abs(r / ratios[0] - 1) for r in ratios) <= 1e-8

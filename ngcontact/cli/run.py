@@ -208,6 +208,8 @@ def cmd_run(args, argv) -> int:
         print(f"ngcontact: note: {note}", file=sys.stderr)
     for note in result.notes:
         print(f"ngcontact: note: Newton safeguard, {note}", file=sys.stderr)
+    for caveat in result.caveats:
+        print(f"ngcontact: warning: {caveat}", file=sys.stderr)
     print(format_table(result.rows, f"\n{scene.name}: {options.disc} P{options.order} ({time.perf_counter() - t0:.1f} s)"))
     if result.stop_reason and args.quiet and result.complete:  # otherwise the loop's progress line said it
         print(f"adaptive loop stopped: {result.stop_reason}")

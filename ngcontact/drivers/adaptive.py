@@ -178,6 +178,7 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
                f" ({status(out.sol)})  eta {est.eta:.3e}")
         if "err_energy" in out.errors:
             msg += f"  err {out.errors['err_energy']:.3e}  I_eff {est.i_eff:.3f}"
+        msg += "" if est.bound_proven else "  (bound not proven)"
         if on_level is not None:  # on disk before the progress line says it is done
             on_level(result)
         say(msg + f"  t_cum {t_cum:.2f} s")

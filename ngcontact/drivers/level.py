@@ -39,6 +39,7 @@ class RunResult:
     converged: bool = True
     failures: List[str] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)  # safeguards the Newton loop took (newton.safeguards)
+    caveats: List[str] = field(default_factory=list)  # levels whose error bound is not proven (Estimate.bound_proven)
     stop_reason: Optional[str] = None  # adaptive runs: why the loop ended; uniform runs: why they stopped early
     complete: bool = True  # False: the run stopped before its requested levels (stop_reason says why)
 
@@ -238,10 +239,13 @@ def update_rates(rows: List[dict], h_key) -> None:
 
 
 def record_level(result: RunResult, level: int, out: LevelOutcome) -> None:
-    """Keep the final level's solution in ``result``; a level whose Newton failed is a named failure."""
+    """Keep the final level's solution in ``result``; a level whose Newton failed is a named failure, one whose
+    estimate is not a proven bound a caveat."""
     result.discretization, result.x, result.y = out.disc, out.sol.x, out.sol.y
     if out.estimate is not None:
         result.estimate = out.estimate
+        if not out.estimate.bound_proven:
+            result.caveats.append(f"level {level}: error bound eta not proven: {out.estimate.why_not_proven}")
     if not out.sol.converged:
         result.converged = False
         result.failures.append(f"level {level}: Newton did not converge: {out.sol.reason}")

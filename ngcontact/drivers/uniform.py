@@ -81,6 +81,7 @@ def run_uniform(scene, options, progress: Optional[Callable[[str], None]] = None
             msg += f"  err {row['err_energy']:.3e}" + (f"  rate {rate:.2f}" if np.isfinite(rate) else "")
         if out.estimate is not None:
             msg += f"  eta {out.estimate.eta:.3e}" + (f"  I_eff {row['i_eff']:.3f}" if "i_eff" in row else "")
+            msg += "" if out.estimate.bound_proven else "  (bound not proven)"
         if on_level is not None:  # on disk before the progress line says it is done
             on_level(result)
         say(msg)

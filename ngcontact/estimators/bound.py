@@ -25,7 +25,9 @@ Global terms:
   C_{Omega,mu} = C_F (sum_a 1/mu_a)^{1/2}, C_F the Friedrichs constant of Omega);
 * eta_quad (our addition): the element means of the residual, nonzero up to the quadrature of the
   FE load vector (round-off for smooth f; O(h^{1/2}) in L2 for f discontinuous across a curve);
-* eta_bc = |||w_h||| and eps_w (our additions, zero for polynomial Dirichlet data).
+* eta_bc = |||w_h||| and eps_w (our additions, zero for polynomial Dirichlet data);
+* eta_trace: an indicator of the data part g - Pi g that w_h leaves out, assumed negligible by the proof below;
+  the bound is reported as not proven when it is not (:attr:`Estimate.bound_proven`, :func:`.dirichlet.trace_defect`).
 
 Totals, with eta_FR = (sum_K sum_a (eta_F,K,a + eta_R,K,a)^2)^{1/2}:
 
@@ -100,7 +102,7 @@ from typing import Optional, Tuple
 import numpy as np
 from ngsolve import L2, GridFunction, TaskManager
 
-from .dirichlet import dirichlet_lifting
+from .dirichlet import TRACE_DEFECT_SHARE, dirichlet_lifting, trace_defect
 from .flux import FluxReconstruction, reconstruct, reconstruct_several, vertex_device_exact
 from .nonnegative import concentrated_multiplier
 from .options import EstimatorOptions
@@ -158,6 +160,9 @@ class Estimate:
         "fit" or "shape", see ``multiplier`` there); empty otherwise.
     eta_candidates : dict
         the bound of each candidate when :func:`estimate` chose between two (name -> eta); empty otherwise.
+    eta_trace : float
+        indicator of the Dirichlet data part that w_h leaves out (:func:`.dirichlet.trace_defect`; 0 for
+        polynomial data); :attr:`bound_proven` compares it with eta.
     """
 
     fields: Tuple[str, ...]
@@ -188,6 +193,23 @@ class Estimate:
     theta_contact: float = 0.0
     multiplier: str = ""
     eta_candidates: dict = field(default_factory=dict)
+    eta_trace: float = 0.0
+
+    @property
+    def bound_proven(self) -> bool:
+        """False when the trace defect indicator eta_trace (:func:`.dirichlet.trace_defect`: the part g - Pi g of
+        non-polynomial Dirichlet data that the lifting w_h leaves out) exceeds
+        :data:`.dirichlet.TRACE_DEFECT_SHARE` eta: the proof assumes that part negligible."""
+        return not self.eta_trace > TRACE_DEFECT_SHARE * self.eta
+
+    @property
+    def why_not_proven(self) -> str:
+        """The reason :attr:`bound_proven` is False ('' when it is True)."""
+        if self.bound_proven:
+            return ""
+        return (f"the Dirichlet data are not resolved on the boundary: trace defect indicator {self.eta_trace:.2e} > "
+                f"{TRACE_DEFECT_SHARE:g} eta (eta = {self.eta:.2e}; data singular inside a boundary edge?), which "
+                "the bound assumes negligible")
 
     @property
     def i_eff(self) -> float:
@@ -256,6 +278,8 @@ class Estimate:
             "eta_quad": self.eta_quad,
             "eta_bc": self.eta_bc,
             "eps_w": self.eps_w,
+            "eta_trace": self.eta_trace,
+            "bound_proven": int(self.bound_proven),
             "eta_nonc2_seed": self.eta_nonc2_seed,
             "time_estimate_s": self.time_total,
         }
@@ -392,8 +416,10 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
     # clamped alike, so that eta_disc = eta at convergence
     eta_direct = direct_root(eta_FR + eta_quad + nonc1 + nonc2, theta + 0.5 * sum_C)
     eta = math.hypot(min(eta_seed + nonc1, eta_direct) + eps_w, eta_bc)           # bound of |||u - u_h|||
+    eta_tr = trace_defect(dv, fields, p + 2) if any(w is not None for w in ws) else 0.0  # what w_h leaves out
     return Estimate(fields=tuple(fd.name for fd in fields), eta_F=eta_F, eta_R=eta_R, eta_C=eta_C, h=ig.h,
                     eta_FR=eta_FR, eta_quad=eta_quad, eta_nonc1=nonc1, eta_nonc2=nonc2, eta_nonc3=nonc3,
                     eta_bc=eta_bc, eps_w=eps_w, eta_nonc2_seed=nonc2_seed, C_F=ig.C_F, C_Omega_mu=C_om,
                     eta_seed=eta_seed, eta=eta, time_flux=flux.time, flux=flux, bc_K=bc_K,
-                    nonc2_K=ig.C_mu ** 2 * loc_K, nonc1_K=nonc1_K, eta_direct=eta_direct, theta_contact=theta)
+                    nonc2_K=ig.C_mu ** 2 * loc_K, nonc1_K=nonc1_K, eta_direct=eta_direct, theta_contact=theta,
+                    eta_trace=eta_tr)

@@ -30,20 +30,24 @@ import math
 from typing import Optional
 
 import numpy as np
-from ngsolve import (BND, H1, VOL, BilinearForm, CoefficientFunction, ElementId, GridFunction,
-                     Integrate, LinearForm, dx, grad)
+from ngsolve import (BND, H1, VOL, BilinearForm, CoefficientFunction, ElementId, GridFunction, InnerProduct,
+                     Integrate, LinearForm, dx, grad, specialcf)
 
 from ..discretizations.base import bit_array, bit_mask
 from ..domains import DIRICHLET
 from .view import DiscretizationView
 
-__all__ = ["STRIP_LAYERS", "STRIP_LAYERS_HIGH", "strip_layers", "boundary_strip", "dirichlet_correction",
-           "dirichlet_lifting", "trace_vertices"]
+__all__ = ["STRIP_LAYERS", "STRIP_LAYERS_HIGH", "TRACE_DEFECT_SHARE", "strip_layers", "boundary_strip",
+           "dirichlet_correction", "dirichlet_lifting", "trace_defect", "trace_vertices"]
 
 #: element layers along the Dirichlet boundary carrying the Dirichlet-data correction (module doc)
 STRIP_LAYERS = 8
 #: ... for FE degree p >= 2 (module doc)
 STRIP_LAYERS_HIGH = 2
+#: the bound counts as proven while the trace defect indicator eta_tr <= TRACE_DEFECT_SHARE * eta (module doc)
+TRACE_DEFECT_SHARE = 0.1
+#: degrees above that of the lifting at which the data's trace stands for g in :func:`trace_defect`
+TRACE_DEFECT_EXTRA = 4
 
 
 def strip_layers(p: int) -> int:
@@ -197,4 +201,30 @@ def dirichlet_lifting(dv: DiscretizationView, fields, mode):
     if key not in dv.cache:
         k = dv.order + 2
         dv.cache[key] = dirichlet_correction(dv, fields, k, k - 1 if mode == "fast" else k)
+    return dv.cache[key]
+
+
+def trace_defect(dv: DiscretizationView, fields, k: int) -> float:
+    """The indicator eta_tr of the Dirichlet data part g - Pi_k g that a lifting of degree ``k`` leaves out (module
+    doc), with g taken as its boundary projection of degree k + :data:`TRACE_DEFECT_EXTRA`; cached per
+    discretization and ``k``.  Boundary-only spaces: the cost is that of the Dirichlet edges."""
+    key = ("trace", k)
+    if key in dv.cache:
+        return dv.cache[key]
+    mesh = dv.mesh
+    bnd = mesh.Boundaries(DIRICHLET)
+    hi = k + TRACE_DEFECT_EXTRA
+    Vk = H1(mesh, order=k, dirichlet=DIRICHLET, definedon=bnd)
+    Vh = H1(mesh, order=hi, dirichlet=DIRICHLET, definedon=bnd)
+    h, t = specialcf.mesh_size, specialcf.tangential(2)
+    total = 0.0
+    for fd in fields:
+        low, high, d = GridFunction(Vk), GridFunction(Vh), GridFunction(Vh)
+        low.Set(fd.g, BND)
+        high.Set(fd.g, BND)
+        d.Set(low, BND)  # exact: Pi_k g is a polynomial of degree k <= hi on every edge
+        d.vec.data -= high.vec  # Pi_k g - Pi_hi g (d.vec.data = high.vec - d.vec would alias d.vec)
+        total += fd.mu * Integrate(d * d / h + h * InnerProduct(grad(d), t) ** 2, mesh, BND, definedon=bnd,
+                                   order=2 * hi)
+    dv.cache[key] = math.sqrt(max(total, 0.0))
     return dv.cache[key]

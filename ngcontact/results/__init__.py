@@ -109,6 +109,9 @@ eta_C               contact estimator sum_K 2 (lam_h^pos, u1h - u2h)_K
 eta_nonc1..3        nonconformity estimators of the seed's Theorem
 eta_quad            data oscillation / quadrature term (0 for polynomial data)
 eta_bc, eps_w       Dirichlet data correction |||w_h||| and its non-orthogonality
+eta_trace           indicator of the Dirichlet data part g - Pi g that the correction leaves out
+bound_proven        1, or 0 when eta_trace > 0.1 eta (then eta is not a proven bound; summary.json
+                    "caveats" and the CLI's warning say why; ngcontact.estimators.dirichlet)
 eta_nonc2_seed      seed's C_{Omega,mu} ||lam_h^neg|| (diagnostic, not in eta)
 time_estimate_s     flux reconstruction + estimators
 i_eff               eta / err_energy                                  [exact only]
@@ -132,7 +135,8 @@ eta_disc, eta_lin, eta_alg, eta, n_estimates, time_estimate, time_ilu, ilu_fill_
 (nnz(L+U)/nnz(A) of the step's ILU; :class:`ngcontact.newton.inexact.InexactIterationRecord`).
 
 summary.json: ``scene``, ``scene_file``, ``problem``, ``domain``, ``description``, ``options`` (the
-RunOptions), ``converged`` and ``failures`` (Newton), ``stop_reason`` (why an adaptive loop or a
+RunOptions), ``converged`` and ``failures`` (Newton), ``caveats`` (levels whose eta is not a proven
+bound, with the reason), ``stop_reason`` (why an adaptive loop or a
 budget ended the run), ``complete`` and ``reason`` (null when complete), ``final`` (the last
 history row), ``versions``, ``git_revision`` (only when the package runs from its own git
 checkout, else null; ``versions["ngcontact"]`` always says the version) and ``command``.

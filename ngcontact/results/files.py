@@ -28,7 +28,8 @@ HISTORY_COLUMNS = [
     "product_max", "time_mesh_s", "time_mark_s", "time_assembly_s", "time_prolong_s", "time_solve_s", "time_linear_s",
     "time_condense_s", "time_post_s",
     "eta", "rate_eta", "i_eff", "eta_seed", "eta_direct", "theta_contact", "eta_F", "eta_R", "eta_FR", "eta_C", "eta_nonc1",
-    "eta_nonc2", "eta_nonc3", "eta_quad", "eta_bc", "eps_w", "eta_nonc2_seed", "time_estimate_s",
+    "eta_nonc2", "eta_nonc3", "eta_quad", "eta_bc", "eps_w", "eta_trace", "bound_proven", "eta_nonc2_seed",
+    "time_estimate_s",
     "time_total_s", "time_cum_s",
 ]
 

@@ -177,6 +177,7 @@ class RunWriter:
             "converged": result.converged,
             "failures": result.failures,
             "safeguards": list(getattr(result, "notes", [])),
+            "caveats": list(getattr(result, "caveats", [])),
             **({"stop_reason": result.stop_reason} if getattr(result, "stop_reason", None) else {}),
             "complete": bool(complete),
             "reason": reason,
