@@ -56,7 +56,7 @@ def test_stationary_run_files_have_no_time_columns(tmp_path):
     assert _header(out / "history.csv") == [
         "level", "nelem", "h", "ndof", "nodes", "err_energy", "rate_energy", "err_max_nodal", "newton_its",
         "newton_converged", "res_final", "certified", "cert_penetration", "cert_negativity", "cert_slackness",
-        "cert_tol", "newton_remedies", "active_nodes", "linear_size", "gap_min", "lam_min", "product_max",
+        "cert_equilibrium", "cert_tol", "newton_remedies", "active_nodes", "linear_size", "gap_min", "lam_min", "product_max",
         "time_mesh_s", "time_assembly_s", "time_prolong_s", "time_solve_s", "time_linear_s", "time_post_s",
         "time_total_s", "time_cum_s"]
     assert _header(out / "newton.csv") == [

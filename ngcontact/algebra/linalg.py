@@ -166,7 +166,7 @@ class PCGResult:
 
 
 def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np.ndarray] = None, *,
-        rtol: float = 1e-12, maxiter: int = 60, deadline: Optional[float] = None) -> PCGResult:
+        rtol: float = 1e-12, maxiter: int = 60, deadline: Optional[float] = None, jacobi: bool = False) -> PCGResult:
     """Preconditioned conjugate gradients for SPD ``A`` with SPD preconditioner ``M(r) ~ A^{-1} r``.
 
     Target: ``||b - A x|| <= max(rtol ||b||, 4 eps || |A| |x| ||)``; the
@@ -183,6 +183,11 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
     replacement) instead of trusting the drifted recursion.  Stops without
     convergence after ``maxiter`` iterations, when ``time.perf_counter()``
     passes ``deadline``, or on a non-positive curvature p.Ap.
+
+    ``jacobi``: convergence also needs the same test in the norm of diag(A)^{-1} v (residuals in the units of
+    x, row by row), so that rows of very different size are each resolved to their own round-off: with the
+    plain norm alone, rows 1e12 smaller than the others (two membranes with tensions 1e12 apart) kept a
+    residual of 1e-4 of their own size.
     """
     bnorm = float(np.linalg.norm(b))
     x = np.zeros_like(b) if x0 is None else np.array(x0, dtype=float)
@@ -202,9 +207,22 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
             absA.append(sp.csr_matrix((np.abs(Ac.data), Ac.indices, Ac.indptr), shape=Ac.shape))
         return max(tol, eps4 * float(np.linalg.norm(absA[0] @ np.abs(x))))
 
+    d = np.asarray(A.diagonal(), dtype=float) if jacobi and A.shape[0] else None
+    scale = 1.0 / d if d is not None and np.all(d > 0) else None
+
+    def in_units(x, r) -> bool:
+        """The ``jacobi`` test at x (True without it)."""
+        if scale is None:
+            return True
+        if not absA:
+            Ac = sp.csr_matrix(A)
+            absA.append(sp.csr_matrix((np.abs(Ac.data), Ac.indices, Ac.indptr), shape=Ac.shape))
+        target = max(rtol * np.linalg.norm(scale * b), eps4 * np.linalg.norm(scale * (absA[0] @ np.abs(x))))
+        return float(np.linalg.norm(scale * r)) <= target
+
     r = b - A @ x
     rnorm = float(np.linalg.norm(r))
-    if rnorm <= target_at(x, rnorm):
+    if rnorm <= target_at(x, rnorm) and in_units(x, r):
         return PCGResult(x, 0, True, rnorm / bnorm)
     z = M(r)
     p, rz = z.copy(), float(r @ z)
@@ -222,7 +240,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
         if rnorm <= eps4 * anorm * np.linalg.norm(x) or rnorm <= tol:  # the cheap bound first
             r = b - A @ x
             rnorm = float(np.linalg.norm(r))
-            if rnorm <= target_at(x, rnorm):
+            if rnorm <= target_at(x, rnorm) and in_units(x, r):
                 return PCGResult(x, k, True, rnorm / bnorm)
             z = M(r)  # residual replacement: restart from the true residual
             p, rz = z.copy(), float(r @ z)

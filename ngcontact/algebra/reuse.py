@@ -162,7 +162,8 @@ class FactorReuse:
         attempt = self._attempt(self.changed_rows(lin))
         if attempt is not None:
             maxiter, deadline = attempt
-            res = pcg(lin.A, lin.b, self._preconditioner(lin), z0, rtol=self.rtol, maxiter=maxiter, deadline=deadline)
+            res = pcg(lin.A, lin.b, self._preconditioner(lin), z0, rtol=self.rtol, maxiter=maxiter, deadline=deadline,
+                      jacobi=True)
             its = res.iterations
             if res.converged:
                 return res.x, "pcg", its

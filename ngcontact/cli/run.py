@@ -135,26 +135,6 @@ class Session:
     writer = None
 
 
-#: tension ratio above which the coupled two-membrane system resolves the softer membrane only roughly
-TENSION_RATIO_NOTE = 1e8
-
-
-def tension_note(problem, options) -> str:
-    """A note for two membranes whose tensions are more than :data:`TENSION_RATIO_NOTE` apart, solved coupled: the
-    coupled system resolves the softer membrane only to about ratio x 1e-16 (times the condition of its matrix) of
-    its size, whatever the active set (outside audit, stop 48: mu2 / mu1 = 1e-9, u2 off by up to 1.6e-4 at a
-    certified level); '' otherwise."""
-    mus = tuple(float(m) for m in getattr(problem, "mus", ()))
-    if getattr(problem, "obstacle", None) is not None or len(mus) != 2 or min(mus) <= 0 or options.decouple:
-        return ""
-    ratio = max(mus) / min(mus)
-    if ratio <= TENSION_RATIO_NOTE:
-        return ""
-    return (f"the tensions mu1 = {mus[0]:g}, mu2 = {mus[1]:g} are {ratio:.1e} apart: the coupled system resolves the "
-            f"softer membrane only to about {ratio * 1e-16:.0e} of its size times its condition number; --decouple "
-            "(fem) solves it exactly")
-
-
 def cmd_run(args, argv) -> int:
     from ..domains.base import import_collected
     from ..drivers import run_scene
@@ -192,9 +172,6 @@ def cmd_run(args, argv) -> int:
         + (f"adaptive ({options.marking}, theta={options.theta:g}{budget}), " if options.adaptive
            else f"{options.levels} levels{budget}, ")
         + f"Newton-{options.cfun}, {options.start} start")
-    note = tension_note(scene.problem, options)
-    if note:
-        print(f"ngcontact: note: {note}", file=sys.stderr)
     newton_cb = None
     if args.verbose:
         def newton_cb(level, rec):

@@ -201,9 +201,9 @@ def semismooth_newton(system, x0: np.ndarray, y0: np.ndarray, options: NewtonOpt
         done = None if not trial.may_stop else (ResidualStop() if trial.provisional else stop).check(rec, options.tol)
         if done is not None and certified(done):
             return result(True, done, k)
-    else:
+    if history[-1].res <= options.tol:  # what kept the loop going (any ending: cap, cycling, stall, no progress)
         failure = system.certificate(x, y, options.certificate_tol).failure()
-        if failure and history[-1].res <= options.tol:
+        if failure:
             reason += f"; the residual test holds but the {failure}"
     return result(False, reason, len(history) - 1)
 

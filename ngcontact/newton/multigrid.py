@@ -293,7 +293,7 @@ class _MultigridSession:
             if float(np.max(np.abs((lin.b - lin.A @ res.x) / dA), initial=0.0)) <= opt.accuracy * opt.tol * u_scale:
                 break
             target *= 1e-3
-            res = pcg(lin.A, lin.b, mg, res.x, rtol=target / bnorm, maxiter=opt.maxiter)
+            res = pcg(lin.A, lin.b, mg, res.x, rtol=target / bnorm, maxiter=opt.maxiter, jacobi=True)
             its += res.iterations
         return res, its
 

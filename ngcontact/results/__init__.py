@@ -52,9 +52,12 @@ newton_converged    1 if the Newton mode's stopping criterion was met, else 0: |
 res_final           final ||Phi||/||F|| (adaptive: it contains the algebraic residual of the accepted
                     GMRES iterate and can be O(1) when the estimators say the error is discretization-dominated)
 certified           1 if the exit certificate holds at cert_tol (ngcontact.algebra.certificate), else 0
-cert_penetration, cert_negativity, cert_slackness
-                    the certificate: max(-g)^+ / max(|x|, |b|), max(-y)^+ / max(|y|, cert_tol |F| / max D),
-                    max_i min(g_i^+ / max(|x|, |b|), y_i^+ / ...) (sup norms; invariant under scaling)
+cert_penetration, cert_negativity, cert_slackness, cert_equilibrium
+                    the certificate (ngcontact.algebra.certificate): max(-g)^+ / U, max_i (-y_i)^+ / Y_i,
+                    max_i min(g_i^+ / U, y_i^+ / Y_i), and the residual of each field's constrained rows in
+                    the units of that field (U the size of u; Y_i the multiplier's unit of row i, the
+                    smaller of max(|y|, |F| / max D) and what moves the row's softer unknown by U;
+                    sup norms; invariant under scaling)
 cert_tol            tolerance the stopping rule requires of the certificate: 1e3 tol for the residual test,
                     gamma_balance for the balanced stop, inf (recorded only) for the adaptive stop, whose
                     iterate the estimators certify

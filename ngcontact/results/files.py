@@ -20,7 +20,7 @@ HISTORY_COLUMNS = [
     *KEY_COLUMNS, "nelem", "h", "ndof", "ndof_sc", "nodes", "marked", "multiplier", "multiplier_candidates",
     "err_energy", "rate_energy", "err_max_nodal",
     "err_jump", "newton_its", "newton_converged", "res_final", "certified", "cert_penetration", "cert_negativity",
-    "cert_slackness", "cert_tol", "newton_remedies", "newton_balanced",
+    "cert_slackness", "cert_equilibrium", "cert_tol", "newton_remedies", "newton_balanced",
     "eps_lin_final", "eps_disc_final", "active_nodes", "linear_size",
     "cg_its", "mg_levels", "mg_algebraic", "mg_builds", "mg_updates", "time_mg_setup_s",
     "gmres_its", "gmres_max_step", "gmres_first_step", "n_estimates", "time_estimate_newton_s",

@@ -243,7 +243,8 @@ def check_rule(out: Outcome, baselines: dict) -> tuple:
 
 
 def _certificate(rows) -> str:
-    worst = max((max(r.get("cert_penetration", 0.0), r.get("cert_negativity", 0.0), r.get("cert_slackness", 0.0))
+    worst = max((max(r.get("cert_penetration", 0.0), r.get("cert_negativity", 0.0), r.get("cert_slackness", 0.0),
+                     r.get("cert_equilibrium", 0.0))
                  for r in rows), default=float("nan"))
     return f"{worst:.0e}"
 
@@ -259,7 +260,8 @@ def report(outcomes: list, verdicts: list, seconds: float, newton: Optional[str]
              f"ngcontact/studies/stability.py) in {seconds:.0f} s.  "
              f"**{n_pass} of {len(outcomes)} cases pass the rule**: every run converges with a valid exit "
              "certificate on every level, or stops with a named reason; no finished run with a wrong answer, no NaN.", "",
-             "Certificate: the largest of the relative penetration, negative multiplier and slackness over the "
+             "Certificate: the largest of the relative penetration, negative multiplier, slackness and residual in "
+             "the units of each field over the "
              "levels (ngcontact/algebra/certificate.py).  Check: scaled copies must reproduce their baseline "
              f"(errors within {SCALE_RTOL:g} relative after unscaling), other cases must converge (last energy "
              f"error <= {DECAY} x the previous).  Newton its: per level.  Safeguards: Newton-loop remedies taken "
