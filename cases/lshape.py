@@ -35,7 +35,7 @@ problem = TwoMembraneProblem(
     domain=LShape(maxh=0.25),
     f1=f1, f2=-f1, g1=s + phi / 2, g2=s - phi / 2, mu1=1.0, mu2=1.0,
     exact=ExactSolution(u1=s + phi / 2, u2=s - phi / 2, lam=lam,
-                        grad_u1=grad_s + grad_phi / 2, grad_u2=grad_s - grad_phi / 2),
+                        grad_u1=grad_s + grad_phi / 2, grad_u2=grad_s - grad_phi / 2, singular_points=((0.0, 0.0),)),
     name="lshape",
 )
 DEFAULTS = dict(order=1, levels=4)

@@ -27,7 +27,7 @@ from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
-from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, Integrate, InnerProduct, LinearForm, TaskManager,
+from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, InnerProduct, LinearForm, TaskManager,
                      dx, grad)
 
 from ..algebra.linalg import SPDSolver
@@ -39,6 +39,7 @@ from ..domains.base import matplotlib_tri
 from ..problems.base import check_data_on_points
 from .base import Discretization, bit_mask, coordinate_only, evaluate_at_points, scipy_csr
 from .bernstein import BernsteinBasis
+from .graded import integrate_graded
 from .lagrange import LagrangeNodes, meshpoints
 from .nodesets import constraint_node_set
 from .p1 import dirichlet_vertices, p1_matrices, p1_tables
@@ -373,7 +374,7 @@ class FEMDiscretization(Discretization):
             # compiled integrands: the same values (bitwise), evaluated faster; threaded (per-thread partial sums:
             # the sum may differ in its last bit)
             with TaskManager():
-                e2 += mu * Integrate(InnerProduct(d, d).Compile(), self.mesh, order=order)
+                e2 += mu * integrate_graded(InnerProduct(d, d).Compile(), self.mesh, order, ex.singular_points)
                 exact_nodal = self.nodes.evaluate((ex.u1 if a == 0 else ex.u2).Compile())
             emax = max(emax, float(np.max(np.abs(exact_nodal - self.nodes.to_values(nodal[name])))))
         return {"err_energy": float(np.sqrt(max(e2, 0.0))), "err_max_nodal": emax}

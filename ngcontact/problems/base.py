@@ -70,7 +70,9 @@ class ExactSolution:
     For the two-membrane problem give ``u1``, ``u2`` (and optionally ``lam``);
     for the obstacle problem give ``u1`` (= u) and optionally ``lam``.
     Gradients are obtained by symbolic differentiation (``cf.Diff(x)``) unless
-    given explicitly as 2-vectors ``grad_u1``, ``grad_u2``.
+    given explicitly as 2-vectors ``grad_u1``, ``grad_u2``.  ``singular_points``: the points (x, y) where the
+    gradient is singular (the L-shape's re-entrant corner); the energy error is then integrated with a rule
+    graded towards them (:mod:`ngcontact.discretizations.graded`; a fixed-order rule underestimates it).
     """
 
     u1: CoefficientFunction
@@ -78,9 +80,17 @@ class ExactSolution:
     lam: Optional[CoefficientFunction] = None
     grad_u1: Optional[CoefficientFunction] = None
     grad_u2: Optional[CoefficientFunction] = None
+    singular_points: tuple = ()
 
     def __post_init__(self):
         _convert_cfs(self, ["u1", "u2", "lam"])
+        try:
+            pts = tuple((float(p[0]), float(p[1])) for p in self.singular_points if len(p) == 2)
+        except (TypeError, ValueError):
+            pts = None
+        if pts is None or len(pts) != len(self.singular_points):
+            raise ValueError(f"singular_points must be a sequence of points (x, y), got {self.singular_points!r}")
+        object.__setattr__(self, "singular_points", pts)
 
     def gradient(self, alpha: int) -> CoefficientFunction:
         """Gradient of u_alpha (alpha = 1 or 2)."""
