@@ -72,7 +72,8 @@ class ExactSolution:
     Gradients are obtained by symbolic differentiation (``cf.Diff(x)``) unless
     given explicitly as 2-vectors ``grad_u1``, ``grad_u2``.  ``singular_points``: the points (x, y) where the
     gradient is singular (the L-shape's re-entrant corner); the energy error is then integrated with a rule
-    graded towards them (:mod:`ngcontact.discretizations.graded`; a fixed-order rule underestimates it).
+    graded towards them (:mod:`ngcontact.discretizations.graded`; a fixed-order rule underestimates it; FEM and
+    dG errors, HHO's keep their fixed rule).
     """
 
     u1: CoefficientFunction
