@@ -13,6 +13,8 @@ element's area.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from ngsolve import TRIG, VOL, ElementId, IntegrationRule, Integrate
 
@@ -20,8 +22,9 @@ __all__ = ["integrate_graded", "DEPTH", "NEAR"]
 
 #: subdivision levels towards a singular point
 DEPTH = 20
-#: elements whose nearest vertex is within NEAR diameters of a singular point get the graded rule
-NEAR = 1.5
+#: elements whose nearest vertex is within NEAR diameters of a singular point get the graded rule (the last
+#: adaptive L-shape P3 level of 18: NEAR 0.5, 1 and 1.5 agree to 1e-9 relative, none 0.9 % below)
+NEAR = 0.5
 
 
 def _triangles(mesh):
@@ -32,16 +35,18 @@ def _triangles(mesh):
     return coords, els
 
 
-def _leaves(pt, depth: int):
-    """Leaf triangles (k, 3, 2) of the reference triangle (vertices (1, 0), (0, 1), (0, 0), NGSolve's TRIG) split
-    towards the reference point ``pt``."""
+@functools.lru_cache(maxsize=64)
+def _rule(pt: tuple, depth: int, order: int):
+    """(IntegrationRule, weights) of the reference triangle (vertices (1, 0), (0, 1), (0, 0), NGSolve's TRIG) split
+    towards the reference point ``pt`` (module doc); cached: a singular point at a vertex has three positions."""
+    ref = np.array(pt)
     todo = [np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]])]
     leaves = []
     for level in range(depth + 1):
         nxt = []
         for T in todo:
             diam = max(np.linalg.norm(T[0] - T[1]), np.linalg.norm(T[1] - T[2]), np.linalg.norm(T[2] - T[0]))
-            near = min(np.linalg.norm(T - pt, axis=1)) < diam or _inside(T, pt)
+            near = min(np.linalg.norm(T - ref, axis=1)) < diam or _inside(T, ref)
             if level == depth or not near:
                 leaves.append(T)
                 continue
@@ -49,7 +54,15 @@ def _leaves(pt, depth: int):
             nxt += [np.array([T[0], m01, m20]), np.array([m01, T[1], m12]), np.array([m20, m12, T[2]]),
                     np.array([m01, m12, m20])]
         todo = nxt
-    return np.array(leaves)
+    leaves = np.array(leaves)
+    base = IntegrationRule(TRIG, order)
+    q = np.array([p[:2] for p in base.points])
+    w = np.array(base.weights)  # sum 1/2, the reference triangle's area
+    A, B, C = leaves[:, 0], leaves[:, 1], leaves[:, 2]
+    pts = A[:, None, :] + (B - A)[:, None, :] * q[None, :, 0, None] + (C - A)[:, None, :] * q[None, :, 1, None]
+    area = 0.5 * np.abs((B - A)[:, 0] * (C - A)[:, 1] - (B - A)[:, 1] * (C - A)[:, 0])
+    weights = ((2.0 * area)[:, None] * w[None, :]).ravel()  # the leaf rules, in reference measure
+    return IntegrationRule(points=pts.reshape(-1, 2).tolist(), weights=weights.tolist()), weights
 
 
 def _inside(T, p) -> bool:
@@ -60,19 +73,10 @@ def _inside(T, p) -> bool:
 
 def _element_integral(mesh, cf, k: int, corners: np.ndarray, pt: np.ndarray, order: int) -> float:
     """The graded integral of ``cf`` over element ``k`` with vertex coordinates ``corners`` (3, 2)."""
-    # reference coordinates of pt: x = xi v0 + eta v1 + (1 - xi - eta) v2
+    # reference coordinates of pt: x = xi v0 + eta v1 + (1 - xi - eta) v2 (rounded: the key of the cached rule)
     J = np.column_stack([corners[0] - corners[2], corners[1] - corners[2]])
-    ref = np.linalg.solve(J, pt - corners[2])
-    leaves = _leaves(ref, DEPTH)
-    base = IntegrationRule(TRIG, order)
-    q = np.array([p[:2] for p in base.points])
-    w = np.array(base.weights)  # sum 1/2, the reference triangle's area
-    A, B, C = leaves[:, 0], leaves[:, 1], leaves[:, 2]
-    pts = A[:, None, :] + (B - A)[:, None, :] * q[None, :, 0, None] + (C - A)[:, None, :] * q[None, :, 1, None]
-    area = 0.5 * np.abs((B - A)[:, 0] * (C - A)[:, 1] - (B - A)[:, 1] * (C - A)[:, 0])
-    weights = (2.0 * area)[:, None] * w[None, :]  # leaf rule, in reference measure
-    pts, weights = pts.reshape(-1, 2), weights.ravel()
-    ir = IntegrationRule(points=[tuple(p) for p in pts], weights=list(weights))
+    ref = np.round(np.linalg.solve(J, pt - corners[2]), 12) + 0.0
+    ir, weights = _rule((float(ref[0]), float(ref[1])), DEPTH, order)
     values = np.asarray(cf(mesh.GetTrafo(ElementId(VOL, int(k)))(ir))).ravel()
     return float(abs(np.linalg.det(J)) * np.dot(weights, values))
 
