@@ -751,6 +751,9 @@ def test_trace_defect_flags_dirichlet_data_singular_inside_an_edge():
     sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())
     est = estimate(disc, sol.x, sol.y)
     assert 0 < est.eta_trace <= 0.05 * est.eta and est.bound_proven and est.why_not_proven == ""
+    # without the correction the trace of u_h itself (degree p) is what the proof takes as exact
+    off = estimate(disc, sol.x, sol.y, EstimatorOptions(dirichlet_correction=False))
+    assert off.eta_trace > 0.1 * off.eta and not off.bound_proven
     scene = load_scene("disk")  # polynomial Dirichlet data
     disc = FEMDiscretization(scene.problem, scene.problem.domain.mesh(0), order=1)
     sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions())

@@ -1,4 +1,5 @@
 """Energy errors of solutions with point singularities: the graded rule (ngcontact/discretizations/graded.py)."""
+import numpy as np
 import pytest
 from ngsolve import Integrate, Mesh, x, y
 from netgen.geom2d import unit_square
@@ -50,7 +51,43 @@ def test_lshape_energy_error_with_the_graded_rule():
     assert plain.errors(sol.x, sol.y)["err_energy"] < 0.95 * err
 
 
-@pytest.mark.parametrize("bad", [((0.0,),), (1.0, 2.0), "corner", ((0, "a"),)])
+@pytest.mark.parametrize("bad", [((0.0,),), (1.0, 2.0), "corner", ((0, "a"),), 3, (p for p in [(0.0,)])])
 def test_singular_points_must_be_points(bad):
     with pytest.raises(ValueError, match="singular_points must be a sequence of points"):
         ExactSolution(u1=x, singular_points=bad)
+    assert ExactSolution(u1=x, singular_points=(p for p in [(0, 1)])).singular_points == ((0.0, 1.0),)
+
+
+def test_graded_rule_finds_the_element_containing_the_point_and_curved_elements():
+    """Outside review, stop 49: a point at an element's centroid (0.505 diameters from its nearest vertex) was
+    graded towards by no element (error 1e-2 at order 20, as the plain rule); two points on one element were graded
+    towards the last one only (4e-5); curved elements took the straight triangle's area (-2e-4 on the disk).  Now:
+    the centroid case agrees with a finer graded rule to 1e-8, two points to 1e-7, and on a curved disk the
+    graded rule integrates 1 as NGSolve does."""
+    from ngsolve import CF, sqrt
+    from ngcontact.domains import UnitDisk
+
+    mesh = Mesh(unit_square.GenerateMesh(maxh=0.2))
+    coords, els = graded._triangles(mesh)
+    c = coords[els[7]].mean(axis=0)
+    f = ((x - c[0]) ** 2 + (y - c[1]) ** 2) ** (-1 / 3)
+    value = graded.integrate_graded(f, mesh, 12, [tuple(c)])
+    old = graded.DEPTH
+    try:
+        graded.DEPTH = 28
+        fine = graded.integrate_graded(f, mesh, 20, [tuple(c)])
+    finally:
+        graded.DEPTH = old
+    assert abs(value / fine - 1) <= 1e-8 < 1e-4 <= abs(Integrate(f, mesh, order=12) / fine - 1)
+    a, b = coords[els[7]][0], coords[els[7]][1]  # two vertices of one element
+    fa = ((x - a[0]) ** 2 + (y - a[1]) ** 2) ** (-1 / 3)
+    fb = ((x - b[0]) ** 2 + (y - b[1]) ** 2) ** (-1 / 3)
+    both = graded.integrate_graded(fa + fb, mesh, 12, [tuple(a), tuple(b)])
+    apart = graded.integrate_graded(fa, mesh, 12, [tuple(a)]) + graded.integrate_graded(fb, mesh, 12, [tuple(b)])
+    assert abs(both / apart - 1) <= 1e-7
+    disk = UnitDisk(maxh=0.3).mesh(0)
+    disk.Curve(3)
+    pts = np.array(disk.ngmesh.Coordinates())[:, :2]
+    p = pts[np.argmax(np.linalg.norm(pts, axis=1))]  # on the curved boundary
+    one = CF(1.0) + 0 * sqrt(x * x)
+    assert abs(graded.integrate_graded(one, disk, 8, [tuple(p)]) / Integrate(one, disk, order=8) - 1) <= 1e-12

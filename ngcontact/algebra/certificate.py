@@ -26,7 +26,8 @@ Y_i = Y.  ``negativity`` uses Y_i as well.
 * ``equilibrium`` = the residual r = K x - B^T D y - F of the constrained unknowns in the units of their own
   field, max_j |r_j| / (K_jj U_up) over the up unknowns of rows without contact (y_i <= 0), likewise for
   lo with U_lo, and on rows in contact (y_i > 0) with a lo unknown the sum r_up + r_lo, where y cancels, over
-  (K_jj + K_kk) min(U_up, U_lo) (one-sided rows in contact: y takes up the residual, nothing to measure).  The
+  (K_jj + K_kk) min(U_up, U_lo) (one-sided rows in contact: y takes up the residual, nothing to measure); above
+  ``tol``, only the part of each residual beyond the round-off of its evaluation counts (:func:`equilibrium`).  The
   loop's residual test measures ||Phi|| / ||F|| in one norm, which the stiffer field's rows dominate: with
   tensions 1e12 apart the inexact modes stopped with the softer field's rows at 1e-3 of its size.
 
@@ -40,6 +41,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+import scipy.sparse as sp
 
 __all__ = ["Certificate", "certificate", "pair_certificate", "gap_unit", "multiplier_units", "equilibrium",
            "SHIFT_FLOOR"]
@@ -105,7 +107,7 @@ def certificate(system, x: np.ndarray, y: np.ndarray, tol: float) -> Certificate
     Dmax = float(np.max(system.D)) if len(system.D) else 1.0
     Y = max(_inf(y), _inf(system.F) / Dmax)
     cert = pair_certificate(system.gap(x), y, gap_unit(system, x), multiplier_units(system, x, Y), tol)
-    eq = equilibrium(system, x, y)
+    eq = equilibrium(system, x, y, tol)
     return replace(cert, equilibrium=eq if np.isfinite(eq) else float("inf"))
 
 
@@ -115,24 +117,44 @@ def _field_unit(system, x: np.ndarray, cols: np.ndarray) -> float:
     return max(_osc(x[cols]), floor, np.finfo(float).tiny)
 
 
-def equilibrium(system, x: np.ndarray, y: np.ndarray) -> float:
-    """``equilibrium`` of the module doc."""
-    if not len(system.up):
-        return 0.0
+#: the residual of a row counts beyond ROUND_OFF eps (|K| |x| + |B^T D y| + |F|) of that row, its evaluation's round-off
+ROUND_OFF = 64.0
+
+
+def _measure(system, x, y, r, allowance) -> float:
     tiny = np.finfo(float).tiny
-    r, d = system.residual(x, y), np.maximum(system.diagonal(), tiny)
+    d = np.maximum(system.diagonal(), tiny)
+    a = np.maximum(np.abs(r) - allowance, 0.0) if allowance is not None else np.abs(r)
     free, two = ~(y > 0), system.lo >= 0
     up, lo = system.up, system.lo[two]
     U_up = _field_unit(system, x, up)
-    out = float(np.max(np.abs(r[up[free]]) / d[up[free]], initial=0.0)) / U_up
+    out = float(np.max(a[up[free]] / d[up[free]], initial=0.0)) / U_up
     if len(lo):
         U_lo = _field_unit(system, x, lo)
         f2 = free[two]
-        out = max(out, float(np.max(np.abs(r[lo[f2]]) / d[lo[f2]], initial=0.0)) / U_lo)
+        out = max(out, float(np.max(a[lo[f2]] / d[lo[f2]], initial=0.0)) / U_lo)
         ju, jl = system.up[two][~f2], lo[~f2]
-        both = np.abs(r[ju] + r[jl]) / (d[ju] + d[jl])
-        out = max(out, float(np.max(both, initial=0.0)) / min(U_up, U_lo))
+        both = r[ju] + r[jl]
+        if allowance is not None:
+            both = np.maximum(np.abs(both) - allowance[ju] - allowance[jl], 0.0)
+        out = max(out, float(np.max(np.abs(both) / (d[ju] + d[jl]), initial=0.0)) / min(U_up, U_lo))
     return out
+
+
+def equilibrium(system, x: np.ndarray, y: np.ndarray, tol: float = 0.0) -> float:
+    """``equilibrium`` of the module doc.  Where it exceeds ``tol``, each row's residual counts only beyond
+    :data:`ROUND_OFF` eps times the size of its terms: loads 1e12 times the elastic
+    forces, balanced in contact, leave a residual of eps |F| that no x removes, and so does a field of constant
+    value (its range, the unit, is a 1e-6 floor of its size)."""
+    if not len(system.up):
+        return 0.0
+    r = system.residual(x, y)
+    out = _measure(system, x, y, r, None)
+    if out <= tol:
+        return out
+    K = sp.csr_matrix(system.K)
+    size = sp.csr_matrix((np.abs(K.data), K.indices, K.indptr), shape=K.shape) @ np.abs(x) + np.abs(system._B.T @ (system.D * y)) + np.abs(system.F)
+    return _measure(system, x, y, r, ROUND_OFF * np.finfo(float).eps * size)
 
 
 def multiplier_units(system, x: np.ndarray, Y: float) -> np.ndarray:

@@ -209,16 +209,28 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
 
     d = np.asarray(A.diagonal(), dtype=float) if jacobi and A.shape[0] else None
     scale = 1.0 / d if d is not None and np.all(d > 0) else None
+    if scale is not None:
+        if not absA:
+            Ac = sp.csr_matrix(A)
+            absA.append(sp.csr_matrix((np.abs(Ac.data), Ac.indices, Ac.indptr), shape=Ac.shape))
+        tol_s = rtol * float(np.linalg.norm(scale * b))
+        # ||diag(s) |A| ||_2 <= (||.||_1 ||.||_inf)^{1/2}, |A| symmetric: its column sums are |A| s
+        anorm_s = float(np.sqrt((absA[0] @ scale).max() * (scale * (absA[0] @ np.ones(len(scale)))).max()))
 
     def in_units(x, r) -> bool:
         """The ``jacobi`` test at x (True without it)."""
         if scale is None:
             return True
-        if not absA:
-            Ac = sp.csr_matrix(A)
-            absA.append(sp.csr_matrix((np.abs(Ac.data), Ac.indices, Ac.indptr), shape=Ac.shape))
-        target = max(rtol * np.linalg.norm(scale * b), eps4 * np.linalg.norm(scale * (absA[0] @ np.abs(x))))
+        target = max(tol_s, eps4 * np.linalg.norm(scale * (absA[0] @ np.abs(x))))
         return float(np.linalg.norm(scale * r)) <= target
+
+    def may_hold(x, r) -> bool:
+        """The recursive residual's ``jacobi`` norm within reach of its target (True without it): only then is
+        the true residual formed, so that CG is not restarted on every iteration while the plain test holds."""
+        if scale is None:
+            return True
+        rs = float(np.linalg.norm(scale * r))
+        return rs <= tol_s or rs <= eps4 * anorm_s * np.linalg.norm(x)
 
     r = b - A @ x
     rnorm = float(np.linalg.norm(r))
@@ -237,7 +249,7 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
         x += np.multiply(p, alpha, out=work)
         r -= np.multiply(q, alpha, out=work)
         rnorm = float(np.linalg.norm(r))
-        if rnorm <= eps4 * anorm * np.linalg.norm(x) or rnorm <= tol:  # the cheap bound first
+        if (rnorm <= eps4 * anorm * np.linalg.norm(x) or rnorm <= tol) and may_hold(x, r):  # cheap bounds first
             r = b - A @ x
             rnorm = float(np.linalg.norm(r))
             if rnorm <= target_at(x, rnorm) and in_units(x, r):

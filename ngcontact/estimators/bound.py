@@ -200,7 +200,7 @@ class Estimate:
         """False when the trace defect indicator eta_trace (:func:`.dirichlet.trace_defect`: the part g - Pi g of
         non-polynomial Dirichlet data that the lifting w_h leaves out) exceeds
         :data:`.dirichlet.TRACE_DEFECT_SHARE` eta: the proof assumes that part negligible."""
-        return not self.eta_trace > TRACE_DEFECT_SHARE * self.eta
+        return bool(self.eta_trace <= TRACE_DEFECT_SHARE * self.eta)  # NaN: not proven
 
     @property
     def why_not_proven(self) -> str:
@@ -416,7 +416,12 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
     # clamped alike, so that eta_disc = eta at convergence
     eta_direct = direct_root(eta_FR + eta_quad + nonc1 + nonc2, theta + 0.5 * sum_C)
     eta = math.hypot(min(eta_seed + nonc1, eta_direct) + eps_w, eta_bc)           # bound of |||u - u_h|||
-    eta_tr = trace_defect(dv, fields, p + 2) if any(w is not None for w in ws) else 0.0  # what w_h leaves out
+    # what the lifting leaves out of non-polynomial data (w_h of degree p + 2), or without the correction what u_h's
+    # trace (degree p) does: the proof takes it as negligible either way
+    if opts.dirichlet_correction:
+        eta_tr = trace_defect(dv, fields, p + 2) if any(w is not None for w in ws) else 0.0
+    else:
+        eta_tr = trace_defect(dv, fields, p)
     return Estimate(fields=tuple(fd.name for fd in fields), eta_F=eta_F, eta_R=eta_R, eta_C=eta_C, h=ig.h,
                     eta_FR=eta_FR, eta_quad=eta_quad, eta_nonc1=nonc1, eta_nonc2=nonc2, eta_nonc3=nonc3,
                     eta_bc=eta_bc, eps_w=eps_w, eta_nonc2_seed=nonc2_seed, C_F=ig.C_F, C_Omega_mu=C_om,

@@ -38,7 +38,8 @@ class NewtonOptions:
 
     @property
     def certificate_tol(self) -> float:
-        """Bound on the relative penetration, negative multiplier and slackness at exit (:mod:`.certificate`):
+        """Bound on the relative penetration, negative multiplier, slackness and residual in the units of each field
+        at exit (:mod:`ngcontact.algebra.certificate`):
         ``cert_tol``, default 1e3 tol."""
         return self.cert_tol if self.cert_tol is not None else 1e3 * self.tol
 

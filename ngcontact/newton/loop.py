@@ -255,7 +255,7 @@ def round_off_hint(res: float, tol: float) -> str:
     """Advice appended to a failed line search that ended within 100x of the tolerance: there the merit
     function cannot decrease any more in floating point (e.g. HHO without condensation with
     Fischer-Burmeister on test 1 T1 stalls just above tol = 1e-10)."""
-    if not (res <= 100.0 * tol):
+    if not (tol < res <= 100.0 * tol):  # at or below tol the residual test holds: the certificate stopped the loop
         return ""
     return (f"; it stalled at ||Phi||/||F|| = {res:.2e}, within 100x of tol = {tol:g}: the round-off floor of "
             f"this system: try a looser tolerance (e.g. {10 * tol:g})")

@@ -21,11 +21,12 @@ Newton loop's ||Phi|| / ||F||:
   target, so the converged solution is that of the direct solves; without ``early_exit`` every iterate
   is (up to the residual above);
 * ``inexact``: ||b - A z|| <= max(eta_k ||b - A z^0||, ``accuracy`` tol ||F||) with the forcing term
-  eta_k = c_k min(||Phi(X^{k-1})|| / ||F||, ``forcing_max``); c_k starts at 1 and is divided by
-  ``FORCING_CUT`` whenever a step made ||Phi|| grow (a step solved to a tenth that changes many row classes can
-  throw the iterate far off: two membranes 1e3 apart under a checkerboard load, 24k unknowns, ||Phi|| / ||F||
-  0.77 -> 111 -> ... 3.7e4, 200 steps without convergence), so that a run that goes astray turns into the exact
-  mode's solves.
+  eta_k = c_k min(||Phi(X^{k-1})|| / ||F||, ``forcing_max``).  c_k starts at 1, is divided by ``FORCING_CUT``
+  whenever a step made ||Phi|| grow and multiplied by ``FORCING_RECOVER`` (up to 1) whenever one decreased it.  A
+  step solved to a tenth that changes many row classes can throw the iterate far off (two membranes 1e3 apart
+  under a checkerboard load, 24k unknowns: ||Phi|| / ||F|| 0.77 -> 111 -> ... 3.7e4, 200 steps without
+  convergence); a run that keeps going astray so turns into the exact mode's solves, while the single jump of a
+  cold start costs two tighter solves, not the rest of the level.
 
 Newton-min iterates are relaxed at the free boundary (``relax_sweeps`` > 0): after each of the first
 ``relax_steps`` steps whose iterate's active set differs from the one the step solved for by at least a tenth
@@ -155,8 +156,10 @@ class MultigridSolve:
         return _MultigridSession(self, system)
 
 
-#: inexact mode: the forcing term is divided by this after each step that made ||Phi|| grow (module doc)
+#: inexact mode: the forcing term is divided by FORCING_CUT after each step that made ||Phi|| grow and multiplied
+#: by FORCING_RECOVER (up to the plain term) after each one that decreased it (module doc)
 FORCING_CUT = 100.0
+FORCING_RECOVER = 10.0
 
 
 class _MultigridSession:
@@ -197,6 +200,8 @@ class _MultigridSession:
             if opt.mode == "inexact":
                 if self._res_before is not None and res_prev > self._res_before:  # the last step made Phi grow
                     self._forcing_scale /= FORCING_CUT
+                elif self._res_before is not None:  # it decreased Phi: back towards the plain forcing term
+                    self._forcing_scale = min(1.0, self._forcing_scale * FORCING_RECOVER)
                 self._res_before = res_prev
                 r0 = float(np.linalg.norm(lin.b - lin.A @ z0))
                 target = max(floor, self._forcing_scale * min(res_prev, opt.forcing_max) * r0)

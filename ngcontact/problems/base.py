@@ -86,10 +86,11 @@ class ExactSolution:
     def __post_init__(self):
         _convert_cfs(self, ["u1", "u2", "lam"])
         try:
-            pts = tuple((float(p[0]), float(p[1])) for p in self.singular_points if len(p) == 2)
+            given = tuple(self.singular_points)
+            pts = tuple((float(p[0]), float(p[1])) for p in given if len(p) == 2)
         except (TypeError, ValueError):
-            pts = None
-        if pts is None or len(pts) != len(self.singular_points):
+            given, pts = (), None
+        if pts is None or len(pts) != len(given):
             raise ValueError(f"singular_points must be a sequence of points (x, y), got {self.singular_points!r}")
         object.__setattr__(self, "singular_points", pts)
 

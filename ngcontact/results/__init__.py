@@ -55,9 +55,9 @@ certified           1 if the exit certificate holds at cert_tol (ngcontact.algeb
 cert_penetration, cert_negativity, cert_slackness, cert_equilibrium
                     the certificate (ngcontact.algebra.certificate): max(-g)^+ / U, max_i (-y_i)^+ / Y_i,
                     max_i min(g_i^+ / U, y_i^+ / Y_i), and the residual of each field's constrained rows in
-                    the units of that field (U the size of u; Y_i the multiplier's unit of row i, the
-                    smaller of max(|y|, |F| / max D) and what moves the row's softer unknown by U;
-                    sup norms; invariant under scaling)
+                    the units of that field (U the range of u; Y_i the multiplier's unit of row i, the
+                    smaller of max(|y|, |F| / max D) and what moves the row's softer unknown by the range
+                    of its own field; sup norms; invariant under scaling)
 cert_tol            tolerance the stopping rule requires of the certificate: 1e3 tol for the residual test,
                     gamma_balance for the balanced stop, inf (recorded only) for the adaptive stop, whose
                     iterate the estimators certify
