@@ -153,7 +153,8 @@ def equilibrium(system, x: np.ndarray, y: np.ndarray, tol: float = 0.0) -> float
     if out <= tol:
         return out
     K = sp.csr_matrix(system.K)
-    size = sp.csr_matrix((np.abs(K.data), K.indices, K.indptr), shape=K.shape) @ np.abs(x) + np.abs(system._B.T @ (system.D * y)) + np.abs(system.F)
+    absK = sp.csr_matrix((np.abs(K.data), K.indices, K.indptr), shape=K.shape)
+    size = absK @ np.abs(x) + np.abs(system._B.T @ (system.D * y)) + np.abs(system.F)
     return _measure(system, x, y, r, ROUND_OFF * np.finfo(float).eps * size)
 
 

@@ -92,8 +92,8 @@ def _distances(tri: np.ndarray, pt: np.ndarray) -> np.ndarray:
         a, e = tri[:, i], tri[:, j] - tri[:, i]
         t = np.clip(np.einsum("ij,ij->i", pt - a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0.0, 1.0)
         out = np.minimum(out, np.linalg.norm(a + t[:, None] * e - pt, axis=1))
-    cross = [(tri[:, j, 0] - tri[:, i, 0]) * (pt[1] - tri[:, i, 1]) - (tri[:, j, 1] - tri[:, i, 1]) * (pt[0] - tri[:, i, 0])
-             for i, j in ((0, 1), (1, 2), (2, 0))]
+    cross = [(tri[:, j, 0] - tri[:, i, 0]) * (pt[1] - tri[:, i, 1])
+             - (tri[:, j, 1] - tri[:, i, 1]) * (pt[0] - tri[:, i, 0]) for i, j in ((0, 1), (1, 2), (2, 0))]
     inside = (np.minimum.reduce(cross) >= 0) | (np.maximum.reduce(cross) <= 0)
     out[inside] = 0.0
     return out

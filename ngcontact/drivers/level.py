@@ -226,7 +226,8 @@ def certificate_columns(sol) -> dict:
     if c is None:
         return {}
     return {"certified": int(c.valid), "cert_penetration": c.penetration, "cert_negativity": c.negativity,
-            "cert_slackness": c.slackness, "cert_equilibrium": c.equilibrium, "cert_tol": c.tol, "newton_remedies": len(sol.remedies)}
+            "cert_slackness": c.slackness, "cert_equilibrium": c.equilibrium, "cert_tol": c.tol,
+            "newton_remedies": len(sol.remedies)}
 
 
 def update_rates(rows: List[dict], h_key) -> None:
