@@ -773,3 +773,16 @@ def test_trace_defect_scales_with_the_data():
         ratios.append(est.eta_trace / est.eta)
     assert ratios[0] > 0.1
     assert max(abs(r / ratios[0] - 1) for r in ratios) <= 1e-8
+
+
+def test_adaptive_target_reached_by_an_unproven_bound_says_so():
+    """An adaptive run whose target eta is met by an estimate that is not a proven bound (Dirichlet data singular
+    inside an edge) names that in its stop reason, not only in the level's caveat (outside review, stop 49)."""
+    from ngcontact.drivers import RunOptions, run_scene
+    from ngcontact.scenes import Scene
+
+    problem = _singular_boundary_data(0.4)
+    result = run_scene(Scene(name="singular_bc", path=None, problem=problem),
+                       RunOptions(order=1, adaptive=True, target_eta=10.0, max_levels=3))
+    assert result.stop_reason.startswith("target_eta") and "not a proven bound" in result.stop_reason
+    assert result.caveats and result.caveats[0].startswith("level 0: error bound eta not proven")

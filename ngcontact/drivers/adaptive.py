@@ -151,6 +151,8 @@ def run_adaptive(scene, options, progress: Optional[Callable[[str], None]] = Non
         stop = None
         if ad.target_eta is not None and est.eta <= ad.target_eta:
             stop = f"target_eta: eta {est.eta:.3e} <= {ad.target_eta:g}"
+            if not est.bound_proven:  # reached, but by an eta that is not a proven bound (Estimate.bound_proven)
+                stop += " (not a proven bound: " + est.why_not_proven + ")"
         elif level == ad.max_levels - 1:
             stop = f"max_levels: {ad.max_levels} levels"
         elif ad.max_time is not None and t_cum + (time.perf_counter() - t0) >= ad.max_time:
