@@ -41,7 +41,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
-import scipy.sparse as sp
+
+from .sparse import abs_matrix
 
 __all__ = ["Certificate", "certificate", "pair_certificate", "gap_unit", "multiplier_units", "equilibrium",
            "SHIFT_FLOOR"]
@@ -152,9 +153,7 @@ def equilibrium(system, x: np.ndarray, y: np.ndarray, tol: float = 0.0) -> float
     out = _measure(system, x, y, r, None)
     if out <= tol:
         return out
-    K = sp.csr_matrix(system.K)
-    absK = sp.csr_matrix((np.abs(K.data), K.indices, K.indptr), shape=K.shape)
-    size = absK @ np.abs(x) + np.abs(system._B.T @ (system.D * y)) + np.abs(system.F)
+    size = abs_matrix(system.K) @ np.abs(x) + np.abs(system._B.T @ (system.D * y)) + np.abs(system.F)
     return _measure(system, x, y, r, ROUND_OFF * np.finfo(float).eps * size)
 
 

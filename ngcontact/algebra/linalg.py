@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .sparse import abs_row_sums
+from .sparse import abs_matrix, abs_row_sums
 
 __all__ = ["SPDSolver", "FixedPatternCholesky", "SOLVERS", "FACTORIZATIONS", "ngsolve_coo", "sparse_solve", "pcg",
            "PCGResult"]
@@ -198,30 +198,29 @@ def pcg(A, b: np.ndarray, M: Callable[[np.ndarray], np.ndarray], x0: Optional[np
     tol = rtol * bnorm
     absA = []  # |A|, formed on first use
 
+    def abs_A():
+        if not absA:
+            absA.append(abs_matrix(A))
+        return absA[0]
+
     def target_at(x, rnorm):
         """The target at x, its round-off term formed only where it could decide (docstring)."""
         if rnorm <= tol or eps4 * anorm * np.linalg.norm(x) <= tol:
             return tol
-        if not absA:
-            Ac = sp.csr_matrix(A)
-            absA.append(sp.csr_matrix((np.abs(Ac.data), Ac.indices, Ac.indptr), shape=Ac.shape))
-        return max(tol, eps4 * float(np.linalg.norm(absA[0] @ np.abs(x))))
+        return max(tol, eps4 * float(np.linalg.norm(abs_A() @ np.abs(x))))
 
     d = np.asarray(A.diagonal(), dtype=float) if jacobi and A.shape[0] else None
     scale = 1.0 / d if d is not None and np.all(d > 0) else None
     if scale is not None:
-        if not absA:
-            Ac = sp.csr_matrix(A)
-            absA.append(sp.csr_matrix((np.abs(Ac.data), Ac.indices, Ac.indptr), shape=Ac.shape))
         tol_s = rtol * float(np.linalg.norm(scale * b))
         # ||diag(s) |A| ||_2 <= (||.||_1 ||.||_inf)^{1/2}, |A| symmetric: its column sums are |A| s
-        anorm_s = float(np.sqrt((absA[0] @ scale).max() * (scale * (absA[0] @ np.ones(len(scale)))).max()))
+        anorm_s = float(np.sqrt((abs_A() @ scale).max() * (scale * abs_row_sums(A)).max()))
 
     def in_units(x, r) -> bool:
         """The ``jacobi`` test at x (True without it)."""
         if scale is None:
             return True
-        target = max(tol_s, eps4 * np.linalg.norm(scale * (absA[0] @ np.abs(x))))
+        target = max(tol_s, eps4 * np.linalg.norm(scale * (abs_A() @ np.abs(x))))
         return float(np.linalg.norm(scale * r)) <= target
 
     def may_hold(x, r) -> bool:

@@ -66,6 +66,12 @@ def place_rows(data: np.ndarray, indices: np.ndarray, starts: np.ndarray, M: sp.
     indices[pos] = M.indices
 
 
+def abs_matrix(A: sp.spmatrix) -> sp.csr_matrix:
+    """|A| entry by entry (CSR, the pattern of A)."""
+    A = sp.csr_matrix(A)
+    return sp.csr_matrix((np.abs(A.data), A.indices, A.indptr), shape=A.shape)
+
+
 def abs_row_sums(A: sp.spmatrix) -> np.ndarray:
     """sum_j |a_ij| for every row i of A (zero on empty rows): segment sums of |data| over the nonempty rows."""
     A = A.tocsr() if not sp.isspmatrix_csr(A) else A
