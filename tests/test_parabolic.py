@@ -387,3 +387,26 @@ def test_hypotheses_allow_round_off_multipliers():
     assert hypotheses(disc, x, y, comp) == (True, "")
     y[1] = -2e-6
     assert not hypotheses(disc, x, y, comp)[0]
+
+
+def test_study_cache_records_the_revision_of_each_experiment(tmp_path):
+    """A computed experiment of the parabolic study is entered in runs/PROVENANCE.json with the revision it ran with;
+    a cached one is read back, not recomputed, and keeps its entry; the report's provenance section names the
+    revision of every experiment and says when one was cached without it (a stale cache is then visible)."""
+    from ngcontact.studies.parabolic import _cached, provenance_lines, read_provenance
+
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"value": len(calls)}
+
+    first = _cached(tmp_path, "exp-a", compute, lambda *_: None, "abc1234")
+    again = _cached(tmp_path, "exp-a", compute, lambda *_: None, "def5678")
+    assert first == again == {"value": 1} and len(calls) == 1
+    assert read_provenance(tmp_path)["exp-a"]["revision"] == "abc1234"
+    (tmp_path / "runs" / "exp-b.json").write_text("[1, 2]\n")  # cached by an older study: no entry
+    text = "\n".join(provenance_lines(tmp_path, ["exp-a", "exp-b"]))
+    assert "| exp-a | abc1234 |" in text and "| exp-b | not recorded" in text and "several code revisions" in text
+    assert "Every experiment was computed with revision abc1234." in provenance_lines(tmp_path, ["exp-a"])
+    assert "No experiment has a recorded revision" in "\n".join(provenance_lines(tmp_path, ["exp-b"]))

@@ -17,12 +17,13 @@ from pathlib import Path
 
 
 from ..rates import fitted_rate
+from ..results import git_revision
 from ..results.files import atomic_write
 from ..scenes import load_scene
 from ..timestepping.driver import ParabolicOptions, run_parabolic
 from ..timestepping.run import scene_mesh
 
-__all__ = ["SIZES", "run_study", "write_report", "disk_onset_radial"]
+__all__ = ["SIZES", "PROVENANCE", "run_study", "write_report", "disk_onset_radial", "read_provenance"]
 
 SIZES = {
     "quick": dict(disk_levels=(0, 1), rings_maxh=0.05, rings_p2_maxh=0.1, table_maxh=0.1, table_p2_maxh=0.2,
@@ -94,7 +95,9 @@ def _energy(K, d) -> float:
     return math.sqrt(max(float(d @ (K @ d)), 0.0))
 
 
-def _cached(out: Path, name: str, compute, say):
+def _cached(out: Path, name: str, compute, say, revision=None):
+    """The result of experiment ``name``: read from ``OUT/runs/NAME.json``, or computed and written there; a computed
+    one is entered in ``OUT/runs/PROVENANCE.json`` with ``revision`` (the code it ran with) and the time it finished."""
     path = out / "runs" / f"{name}.json"
     if path.is_file():
         return json.loads(path.read_text())
@@ -102,23 +105,62 @@ def _cached(out: Path, name: str, compute, say):
     val = compute()
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, json.dumps(val, indent=1, default=float) + "\n")
+    prov = read_provenance(out)
+    prov[name] = {"revision": revision or "unknown",
+                  "finished": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+    atomic_write(out / "runs" / PROVENANCE, json.dumps(prov, indent=1, sort_keys=True) + "\n")
     say(f"[parabolic study] {name} done")
     return val
+
+
+#: file of ``OUT/runs`` that records, per experiment, the code revision it was computed with
+PROVENANCE = "PROVENANCE.json"
+
+
+def read_provenance(out) -> dict:
+    """Experiment name -> {"revision", "finished"} of ``OUT/runs/PROVENANCE.json`` ({} without that file)."""
+    path = Path(out) / "runs" / PROVENANCE
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def provenance_lines(out, names) -> list:
+    """The report's provenance section: the revision and finishing time of every experiment of ``names`` (a cached
+    result without an entry was computed before the study recorded them: its code is unknown)."""
+    prov = read_provenance(out)
+    revs = {prov.get(n, {}).get("revision", "not recorded") for n in names}
+    if revs == {"not recorded"}:
+        head = "No experiment has a recorded revision (all were cached before the study kept provenance)."
+    elif len(revs) == 1:
+        head = f"Every experiment was computed with revision {revs.pop()}."
+    else:
+        head = ("The experiments come from several code revisions (a cached result is reused until its file is "
+                "deleted): compare with care.")
+    L = ["## Provenance", "", head, "", "| experiment | revision | finished |", "|---|---|---|"]
+    for n in sorted(names):
+        e = prov.get(n)
+        L.append(f"| {n} | {e['revision']} | {e['finished']} |" if e else
+                 f"| {n} | not recorded (cached before the study kept provenance) | - |")
+    return L + [""]
 
 
 def run_study(out, size: str = "quick", say=print) -> dict:
     """Run (or read back) every experiment; returns name -> result."""
     out, z = Path(out), SIZES[size]
+    revision = git_revision()  # of the code this process imported (edits made while it runs do not count)
+
+    def cached(name, compute, say):
+        return _cached(out, name, compute, say, revision)
+
     disk, rings, mms = (load_scene(n) for n in ("parabolic_disk", "parabolic_rings", "parabolic_manufactured"))
     R = {}
     for lev in z["disk_levels"]:
-        R[f"disk-l{lev}"] = _cached(out, f"disk-l{lev}", lambda lev=lev: _run(
+        R[f"disk-l{lev}"] = cached(f"disk-l{lev}", lambda lev=lev: _run(
             disk, scene_mesh(disk, {"level": lev}), dt=1e-3)[1], say)
-        R[f"disk-l{lev}-long"] = _cached(out, f"disk-l{lev}-long", lambda lev=lev: _run(
+        R[f"disk-l{lev}-long"] = cached(f"disk-l{lev}-long", lambda lev=lev: _run(
             disk, scene_mesh(disk, {"level": lev}), dt=1e-3, t_final=DISK_LONG_T)[1], say)
-    R["disk-onset-radial"] = _cached(out, "disk-onset-radial", lambda: dict(zip(("t", "r"), disk_onset_radial())),
+    R["disk-onset-radial"] = cached("disk-onset-radial", lambda: dict(zip(("t", "r"), disk_onset_radial())),
                                      say)
-    R["rings-onset"] = _cached(out, "rings-onset", lambda: _run(
+    R["rings-onset"] = cached("rings-onset", lambda: _run(
         rings, scene_mesh(rings, {"maxh": z["rings_maxh"]}), dt=1e-3)[1], say)
 
     def table(cfun, order, maxh, krylov="gmres"):
@@ -133,17 +175,17 @@ def run_study(out, size: str = "quick", say=print) -> dict:
         for mode in rows:
             rows[mode]["rel_diff_u_T"] = _energy(K, xs[mode] - xs["direct"]) / ref
         return rows
-    R["table-min-p1"] = _cached(out, "table-min-p1", lambda: table("min", 1, z["table_maxh"]), say)
-    R["table-fb-p1"] = _cached(out, "table-fb-p1", lambda: table("fb", 1, z["table_maxh"]), say)
-    R["table-min-p2"] = _cached(out, "table-min-p2", lambda: table("min", 2, z["table_p2_maxh"]), say)
-    R["table-min-p1-cg"] = _cached(out, "table-min-p1-cg", lambda: table("min", 1, z["table_maxh"], "cg"), say)
+    R["table-min-p1"] = cached("table-min-p1", lambda: table("min", 1, z["table_maxh"]), say)
+    R["table-fb-p1"] = cached("table-fb-p1", lambda: table("fb", 1, z["table_maxh"]), say)
+    R["table-min-p2"] = cached("table-min-p2", lambda: table("min", 2, z["table_p2_maxh"]), say)
+    R["table-min-p1-cg"] = cached("table-min-p1-cg", lambda: table("min", 1, z["table_maxh"], "cg"), say)
 
     def mms_h(order, levels):
         dt0, T = MMS_H[order]
         return [_run(mms, scene_mesh(mms, {"level": lev}), order=order, dt=dt0 / 2 ** (order * lev), t_final=T,
                      estimate=True)[1] for lev in levels]
-    R["mms-h-p1"] = _cached(out, "mms-h-p1", lambda: mms_h(1, z["mms_levels"]), say)
-    R["mms-h-p2"] = _cached(out, "mms-h-p2", lambda: mms_h(2, z["mms_p2_levels"]), say)
+    R["mms-h-p1"] = cached("mms-h-p1", lambda: mms_h(1, z["mms_levels"]), say)
+    R["mms-h-p2"] = cached("mms-h-p2", lambda: mms_h(2, z["mms_p2_levels"]), say)
 
     def mms_dt():
         mesh = scene_mesh(mms, {"level": z["mms_dt_level"]})
@@ -156,7 +198,7 @@ def run_study(out, size: str = "quick", say=print) -> dict:
         for i in range(len(xs) - 1):  # Richardson: |||u_h^dt(T) - u_h^{dt/2}(T)|||, O(dt) for backward Euler
             out_rows[i]["diff_half"] = _energy(K, xs[i] - xs[i + 1])
         return out_rows
-    R["mms-dt"] = _cached(out, "mms-dt", mms_dt, say)
+    R["mms-dt"] = cached("mms-dt", mms_dt, say)
 
     def adaptive_steps(rule, safeties, mesh):
         return {f"{sf:g}": _run(rings, mesh, dt=ADAPT_FIXED_DT[0], estimate=True, adaptive_dt=True, safety=sf,
@@ -166,8 +208,8 @@ def run_study(out, size: str = "quick", say=print) -> dict:
         mesh = scene_mesh(rings, {"maxh": z["adapt_maxh"]})
         fixed = {f"{dt:g}": _run(rings, mesh, dt=dt, estimate=True)[1] for dt in ADAPT_FIXED_DT}
         return {"fixed": fixed, "adaptive": adaptive_steps("balance", ADAPT_SAFETY, mesh)}
-    R["adapt"] = _cached(out, "adapt-sweep", adapt, say)
-    R["adapt-equi"] = _cached(out, "adapt-equi", lambda: adaptive_steps(
+    R["adapt"] = cached("adapt-sweep", adapt, say)
+    R["adapt-equi"] = cached("adapt-equi", lambda: adaptive_steps(
         "equidistribute", EQUI_SAFETY, scene_mesh(rings, {"maxh": z["adapt_maxh"]})), say)
     return R
 
@@ -282,6 +324,7 @@ def write_report(out, R: dict, size: str) -> Path:
     L += ["", "Last column: the number of fixed steps that gives the same final estimate, interpolated linearly in "
           "(eta_st, log steps) between the fixed runs (- outside their range)."]
     L += ["", "The mesh is fixed during a run (NGSolve has no coarsening).", ""]
+    L += provenance_lines(out, [f.stem for f in sorted((Path(out) / "runs").glob("*.json")) if f.name != PROVENANCE])
     path = Path(out) / "REPORT.md"
     atomic_write(path, "\n".join(L))
     return path
