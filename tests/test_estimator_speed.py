@@ -6,7 +6,10 @@
   chosen multiplier alone, component by component;
 * :func:`ngcontact.estimators.boundary.residual_multiplier` on straight elements (a P_{p-2} GridFunction)
   against its defining expression with the Hessians of the fields;
-* eta_F by the exact rule of :func:`ngcontact.estimators.terms.flux_rule_order` against the estimator quadrature.
+* eta_F by the exact rule of :func:`ngcontact.estimators.terms.flux_rule_order` against the estimator quadrature;
+* the multiplier's support (:attr:`ngcontact.estimators.flux.FluxReconstruction.lam_support`): lam^ vanishes outside
+  it, and the estimate restricted to it equals the one over all elements; quadrature arrays on some elements are the
+  rows of those on all; the element means of the flux residual from their parts against the plain rule.
 """
 import numpy as np
 import pytest
@@ -105,3 +108,65 @@ def test_flux_term_by_the_exact_polynomial_rule(scene, p):
     exact = flux_residual(ig, fields, fl.sigma, grads, data, fl_rule=rule)[0]
     plain = flux_residual(ig, fields, fl.sigma, grads, data)[0]
     assert np.abs(exact - plain).max() <= 1e-12 * np.abs(plain).max()
+
+
+def test_quadrature_arrays_on_some_elements_are_rows_of_the_full_ones(lshape_p3):
+    from ngcontact.estimators.nonnegative import QuadratureArrays
+
+    disc, sol = lshape_p3
+    gfs = disc.gridfunctions(sol.x, sol.y)
+    full = QuadratureArrays(disc.mesh, 12)
+    rows = np.array([0, 5, disc.mesh.ne - 1, 3])
+    some = QuadratureArrays(disc.mesh, 12, rows)
+    assert np.array_equal(some.W, full.W[rows])
+    assert np.array_equal(some.values(gfs["u1"]), full.values(gfs["u1"])[rows])
+    assert np.array_equal(some.values(gfs["gap"], [1, 2]), full.values(gfs["gap"], rows[[1, 2]]))
+
+
+@pytest.mark.parametrize("multiplier", ["shape", "contact"])
+def test_multiplier_support_holds_and_the_restricted_estimate_equals_the_full_one(lshape_p3, multiplier):
+    """lam^ of the batched patch-constant and shaped multipliers is zero on every element outside
+    ``lam_support`` (at the points of a fine rule), the support is a proper part of the mesh, and the estimate that
+    visits only its elements (concentrated multiplier, element means of the data) equals the one that visits all."""
+    from ngcontact.estimators.nonnegative import QuadratureArrays
+
+    disc, sol = lshape_p3
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    fl = reconstruct(sv, 3, multiplier=multiplier)
+    assert fl.lam_support is not None and 0 < fl.lam_support.sum() < 0.5 * disc.mesh.ne
+    outside = np.flatnonzero(~fl.lam_support)
+    assert np.abs(QuadratureArrays(disc.mesh, 16, outside).values(fl.lam)).max() == 0.0
+    inside = np.flatnonzero(fl.lam_support)
+    assert np.abs(QuadratureArrays(disc.mesh, 16, inside).values(fl.lam)).max() > 0.0
+    restricted = estimate(disc, sol.x, sol.y, flux=fl)
+    fl.lam_support = None
+    everywhere = estimate(disc, sol.x, sol.y, flux=fl)
+    a, b = restricted.summary(), everywhere.summary()
+    for key in a:
+        if key != "time_estimate_s":
+            assert a[key] == pytest.approx(b[key], rel=1e-12, abs=1e-14 * b["eta"]), key
+    assert np.abs(restricted.eta_C - everywhere.eta_C).max() <= 1e-14 * b["eta"] ** 2
+
+
+def test_element_means_from_their_parts_equal_the_plain_rule(lshape_p3):
+    """eta_quad with the element means summed from the load (kept per mesh), the data (on their support) and
+    div sigma (exact rule of order q) equals eta_quad with the means of res = f + data - div sigma by the fine rule."""
+    from ngsolve import div
+
+    from ngcontact.estimators.terms import mean_term
+
+    disc, sol = lshape_p3
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    dv, fields = sv.disc, sv.fields
+    fl = reconstruct(sv, 3, multiplier="shape")
+    ws = dirichlet_lifting(dv, fields, True)[0]
+    ig = Integrals.of(dv, EstimatorOptions())
+    grads = corrected_fields(dv, fields, ws)[1]
+    data = [fd.sign * fl.lam for fd in fields]
+    eta_FR, eta_quad = flux_residual(ig, fields, fl.sigma, grads, data, data_support=fl.lam_support)[2:]
+    plain = [ig.ew(fd.f + m - div(sig), dx(bonus_intorder=ig.bonus + 8)) / ig.area
+             for fd, m, sig in zip(fields, data, fl.sigma)]
+    want = mean_term(ig, plain, [fd.mu for fd in fields], eta_FR)
+    assert want > 0.0 and eta_quad == pytest.approx(want, rel=1e-9)
+    f = fields[0].f
+    assert ig.data_integrals(f) is ig.data_integrals(f)  # kept for the same load object

@@ -104,7 +104,7 @@ from ngsolve import L2, GridFunction, TaskManager
 
 from .dirichlet import TRACE_DEFECT_SHARE, dirichlet_lifting, trace_defect
 from .flux import FluxReconstruction, reconstruct, reconstruct_several, vertex_device_exact
-from .nonnegative import concentrated_multiplier
+from .nonnegative import QuadratureArrays, concentrated_multiplier
 from .options import EstimatorOptions
 from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, flux_rule_order,
                     negative_part_squares, nonconformity, nonnegative_part)
@@ -382,27 +382,37 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         nonc1, corr, nonc1_K = nc.eta, nc.n, nc.loc
         nonc2_seed, theta = shared["seed"], shared["theta"]
         eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads, [fd.sign * lam for fd in fields],
-                                                       fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)))
+                                                       fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)),
+                                                       data_support=flux.lam_support)
 
         # multiplier: lam~ >= 0 and eta_nonc,2
         lam_t, nonc2, loc_K = nonnegative_part(ig, lam, flux.lam_order, eta_FR)
         if opts.concentrates(p):
-            # lam~ moved towards the small gaps inside every element (:func:`concentrated_multiplier`)
-            if "qa" not in shared:  # the values of the gap and of n, filled element by element as needed
-                qa = ig.quadrature(2 * p + 6)
-                shared["qa"] = qa, np.zeros(qa.W.shape), np.zeros(qa.W.shape), np.zeros(len(qa.W), dtype=bool)
-            qa, gap_v, corr_v, known = shared["qa"]
+            # lam~ moved towards the small gaps inside every element (:func:`concentrated_multiplier`); lam~
+            # vanishes where lam^ does (.nonnegative), so with lam^'s support known only its elements are visited
+            sub = None if flux.lam_support is None else np.flatnonzero(flux.lam_support)
+            if sub is not None:
+                qa = QuadratureArrays(ig.mesh, 2 * p + 6, sub)
+                gap_v, corr_v, known = np.zeros(qa.W.shape), np.zeros(qa.W.shape), np.zeros(len(sub), dtype=bool)
+            else:
+                if "qa" not in shared:  # the values of the gap and of n, filled element by element as needed
+                    qa = ig.quadrature(2 * p + 6)
+                    shared["qa"] = qa, np.zeros(qa.W.shape), np.zeros(qa.W.shape), np.zeros(len(qa.W), dtype=bool)
+                qa, gap_v, corr_v, known = shared["qa"]
+            rows = slice(None) if sub is None else sub  # the elements of the rows of qa's arrays
             lam_v = qa.values(lam_t)
             need = np.flatnonzero(gap_elements(lam_v) & ~known)
             if len(need):
                 gap_v[need] = qa.values(gap, need)
                 corr_v[need] = nc.values(qa, gap_v[need], need)
                 known[need] = True
-            lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + corr_v, ig.h, ig.C_mu,
+            lam_v, loc2 = concentrated_multiplier(qa, lam_v, gap_v + corr_v, ig.h[rows], ig.C_mu,
                                                   eta_FR + eta_quad + nonc2 + 2.0 * nonc1)
             nonc2 += ig.C_mu * math.sqrt(float(loc2.sum()))
-            loc_K = loc_K + loc2
-            eta_C = 2.0 * qa.integrate(lam_v * gap_v)                              # eta_C,K^pos
+            loc_K = loc_K.copy()
+            loc_K[rows] += loc2
+            eta_C = np.zeros(ig.mesh.ne)
+            eta_C[rows] = 2.0 * qa.integrate(lam_v * gap_v)                        # eta_C,K^pos
             nonc3 = 2.0 * float(qa.integrate(lam_v * corr_v).sum()) if corr is not None else 0.0
         else:
             eta_C = 2.0 * ig.ew(lam_t * gap)                                        # eta_C,K^pos

@@ -52,6 +52,8 @@ import time
 from dataclasses import dataclass, field
 from typing import List, Optional
 
+import numpy as np
+
 from ngsolve import (TRIG, CoefficientFunction, FacetFESpace, GridFunction, HDiv, IntegrationRule, L2, TaskManager,
                      Trace, div, dx, grad, specialcf)
 from ngsolve.comp import PatchwiseSolve
@@ -97,6 +99,10 @@ class FluxReconstruction:
         order of the triangle rule with which the patch sources integrated lam^ (non-polynomial
         lam^ of :class:`.multipliers.ShapedContactMultiplier`; None: the FE mass rule); the
         equilibration check uses the same rule.
+    lam_support : ndarray (ne,) of bool, or None
+        elements outside of which ``lam`` vanishes identically (lam^ built from per-element vertex values:
+        the patch-constant and shaped multipliers of the batched solver, zero on an element whose values are
+        all zero); None: not known (lam may be nonzero anywhere).
     """
 
     sigma: List[GridFunction]
@@ -107,6 +113,7 @@ class FluxReconstruction:
     time: float = 0.0
     lam_order: int = 1
     lam_rule: Optional[int] = None
+    lam_support: Optional[np.ndarray] = None
     _conforming: dict = field(default_factory=dict, repr=False)
 
     def conforming(self, i: int) -> GridFunction:
@@ -406,7 +413,8 @@ def reconstruct(sv: SolutionView, q: int, *, multiplier: Optional[str] = None, b
     sigmas = equilibrate_all(sv.disc.mesh, q, data, regularization=patch_regularization(sv.disc, regularization),
                              solver=patch_solver(sv.disc, q) if batched else None)
     return FluxReconstruction(sigma=sigmas, fields=list(sv.fields), lam=lam, order=q, space=sigmas[0].space,
-                              time=time.perf_counter() - t0, lam_order=lam_order, lam_rule=lam_rule)
+                              time=time.perf_counter() - t0, lam_order=lam_order, lam_rule=lam_rule,
+                              lam_support=_vertex_support(data))
 
 
 def reconstruct_several(sv: SolutionView, q: int, multipliers, *, boundary: bool = True) -> list:
@@ -421,8 +429,24 @@ def reconstruct_several(sv: SolutionView, q: int, multipliers, *, boundary: bool
     for j, (_, lam, lam_order, lam_rule) in enumerate(parts):
         sig = sigmas[j * n:(j + 1) * n]
         out.append(FluxReconstruction(sigma=sig, fields=list(sv.fields), lam=lam, order=q, space=sig[0].space,
-                                      time=t, lam_order=lam_order, lam_rule=lam_rule))
+                                      time=t, lam_order=lam_order, lam_rule=lam_rule,
+                                      lam_support=_vertex_support(parts[j][0])))
     return out
+
+
+def _vertex_support(data) -> Optional[np.ndarray]:
+    """The elements outside of which the multiplier of the patch data ``data`` vanishes (mask), when every field's
+    multiplier source is given by per-element vertex values (``PatchData.vertex_values``: lam^ = sum of those P1
+    functions, each times its shape, zero on an element whose values are all zero) and there is no other multiplier
+    source; else None."""
+    if not data or any(d.vertex_values is None or d.source is not None for d in data):
+        return None
+    mask = None
+    for d in data:
+        for values, _ in d.vertex_values:
+            nz = (np.asarray(values) != 0.0).any(axis=1)
+            mask = nz if mask is None else mask | nz
+    return mask
 
 
 def _equilibration_data(sv: SolutionView, q: int, multiplier, batched: bool, boundary: bool):

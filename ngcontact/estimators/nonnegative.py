@@ -65,25 +65,35 @@ def lam_vertex_min(lam, mesh) -> np.ndarray:
 
 
 class QuadratureArrays:
-    """Values of CoefficientFunctions at the points of one rule on every element, and the
+    """Values of CoefficientFunctions at the points of one rule on every element (or on the elements of the index
+    array ``elements``, in that order: row i of every array belongs to element ``elements[i]``), and the
     weights w_j |det J| (vectorized; for the element sums of products of non-polynomial
     functions such as the kinks of max(0, .))."""
 
-    def __init__(self, mesh, order: int):
+    def __init__(self, mesh, order: int, elements=None):
         self.mesh = mesh
         ir = IntegrationRule(TRIG, order)
         self.ref = np.array([ip.point[:2] for ip in ir])
         w = np.array([ip.weight for ip in ir])
-        self.mips = mesh.MapToAllElements(ir, VOL)
+        self.elements = None if elements is None else np.asarray(elements, dtype=np.int64)
+        if elements is None:
+            self.mips = mesh.MapToAllElements(ir, VOL)
+            n = mesh.ne
+        else:  # the mapped points of those elements only: NGSolve's point records, one per element, repeated
+            n = len(self.elements)
+            one = mesh.MapToAllElements(IntegrationRule(points=[(1 / 3, 1 / 3)], weights=[0.0]), VOL)
+            self.mips = np.repeat(one[self.elements], len(w))
+            self.mips["x"] = np.tile(self.ref[:, 0], n)
+            self.mips["y"] = np.tile(self.ref[:, 1], n)
         J = specialcf.JacobianMatrix(2)
-        det = np.abs(np.asarray((J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])(self.mips))).reshape(mesh.ne, len(w))
+        det = np.abs(np.asarray((J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])(self.mips))).reshape(n, len(w))
         self.W = w[None, :] * det
         # barycentric coordinates of the reference triangle (vertex order irrelevant here)
         xi, et = self.ref[:, 0], self.ref[:, 1]
         self.bary = np.stack([xi, et, 1.0 - xi - et])  # (3, nq)
 
     def values(self, cf, elements=None) -> np.ndarray:
-        """Values of ``cf`` at the points of every element (ne, nq), or of the elements of the index array
+        """Values of ``cf`` at the points of every row's element (nrows, nq), or of the rows of the index array
         ``elements`` (len(elements), nq); None: zeros."""
         if elements is None:
             return np.zeros_like(self.W) if cf is None else np.asarray(cf(self.mips)).reshape(self.W.shape)

@@ -164,6 +164,9 @@ class Integrals:
     rules : dict
         the :class:`.nonnegative.QuadratureArrays` of the mesh per order (:meth:`quadrature`; kept per
         discretization).
+    data : dict
+        element integrals of load functions with the rule of the element means (:meth:`data_integrals`; kept per
+        discretization).
     """
 
     mesh: object
@@ -174,6 +177,7 @@ class Integrals:
     C_mu: float
     dual: P0Dual
     rules: dict = field(default_factory=dict, repr=False)
+    data: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, dv: DiscretizationView, options: EstimatorOptions) -> "Integrals":
@@ -191,7 +195,7 @@ class Integrals:
         C_F = cache["C_F"] if options.friedrichs is None else float(options.friedrichs)
         return cls(mesh=mesh, bonus=bonus, h=cache["h"], area=cache["area"], C_F=C_F,
                    C_mu=math.sqrt(sum(1.0 / mu for mu in dv.mus)), dual=cache["dual"],
-                   rules=cache.setdefault("quadrature_arrays", {}))
+                   rules=cache.setdefault("quadrature_arrays", {}), data=cache.setdefault("data_integrals", {}))
 
     def quadrature(self, order: int) -> QuadratureArrays:
         """The points and weights of the triangle rule of ``order`` on every element (kept)."""
@@ -202,6 +206,26 @@ class Integrals:
     @property
     def dxq(self):
         return dx(bonus_intorder=self.bonus)
+
+    #: extra quadrature order of the element means of the flux residual (:func:`flux_residual`) over ``dxq``: the
+    #: means are the quadrature errors of the data rules, resolved by a finer rule
+    MEAN_BONUS = 8
+
+    def dx_mean(self, elements: Optional[np.ndarray] = None):
+        """The measure of the element means (``dxq`` + :attr:`MEAN_BONUS`), on the elements of the mask ``elements``
+        (default all)."""
+        if elements is None:
+            return dx(bonus_intorder=self.bonus + self.MEAN_BONUS)
+        return dx(bonus_intorder=self.bonus + self.MEAN_BONUS, definedonelements=bit_array(elements))
+
+    def data_integrals(self, f) -> np.ndarray:
+        """Element integrals of the load ``f`` with :meth:`dx_mean` (kept per discretization while ``f`` is the same
+        object: the same numbers for every estimate on this mesh)."""
+        key = (id(f), self.bonus)
+        hit = self.data.get(key)
+        if hit is None or hit[0] is not f:
+            hit = self.data[key] = (f, self.ew(CoefficientFunction(f), self.dx_mean()))  # f referenced: id unique
+        return hit[1]
 
     def ew(self, cf, dxx=None) -> np.ndarray:
         """Element-wise integrals of cf (default measure ``dxq``)."""
@@ -220,11 +244,17 @@ class Integrals:
         return self.ew(IfPos(-gap, 1.0, 0.0)) > 0.0
 
 
-def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None, fl_rule=None):
+def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None, fl_rule=None, data_support=None):
     """eta_F,K,a, eta_R,K,a (arrays (nfields, ne)), eta_FR = (sum_K sum_a (eta_F + eta_R)^2)^{1/2} and
     eta_quad for fluxes with div sigma_a ~ f_a + data_a (module doc).  ``parts``: i -> (||fl||_K^2,
     ||res||_K^2, element means of res) of field i computed elsewhere (:mod:`.affine_p1`).  ``fl_rule``: the
-    order of a triangle rule exact for the polynomial |fl|^2 (:func:`flux_rule_order`; None: ``dxq``)."""
+    order of a triangle rule exact for the polynomial |fl|^2 (:func:`flux_rule_order`; None: ``dxq``).
+    ``data_support``: mask of the elements outside of which every data_a vanishes (None: anywhere).
+
+    The element means of res = f + data - div sigma are summed from the three parts, each with a rule that is
+    exact or as fine as the one for res itself: the load's integrals with :meth:`Integrals.dx_mean` (kept per
+    mesh), those of data_a with the same rule on ``data_support``, and those of div sigma (P_q on straight
+    elements) with the rule of order q there (:meth:`Integrals.dx_mean` on curved ones)."""
     dfl = None if fl_rule is None else dx(intrules={TRIG: IntegrationRule(TRIG, int(fl_rule))})
     eta_F, eta_R = np.zeros((len(fields), ig.mesh.ne)), np.zeros((len(fields), ig.mesh.ne))
     rbar = []
@@ -234,7 +264,9 @@ def flux_residual(ig: Integrals, fields, sigmas, grads, data, parts=None, fl_rul
             fl = math.sqrt(mu) * gu + sig / math.sqrt(mu)
             res = fd.f + m - div(sig)
             fl2, res2 = ig.ew(fl * fl, dfl), ig.ew(res * res)
-            mean = ig.ew(res, dx(bonus_intorder=ig.bonus + 8)) / ig.area
+            ddiv = dx(intrules={TRIG: IntegrationRule(TRIG, int(sig.space.globalorder))}) if ig.dual.affine \
+                else ig.dx_mean()
+            mean = (ig.data_integrals(fd.f) + ig.ew(m, ig.dx_mean(data_support)) - ig.ew(div(sig), ddiv)) / ig.area
         else:
             fl2, res2, mean = parts(i)
         eta_F[i] = np.sqrt(np.maximum(fl2, 0.0))                                           # eta_F,K,alpha
