@@ -34,11 +34,13 @@ class CondensedHHOSystem(ComplementaritySystem):
       X3 is prescribed and the fields decouple; the local inverse of
       mu_a A_CC is the same every step (computed once), only the right-hand
       side changes;
-    * the other cells: in the variables s = X^C_1, d = X^C_1 - X^C_2 the
-      constraints read g = d (b = 0); d is prescribed on active rows, mixed
+    * the other cells: in the variables s = the cell values of the stiffer field (X^C_1 when mu1 >= mu2, else
+      X^C_2) and d = X^C_1 - X^C_2 the constraints read g = d (b = 0); d is prescribed on active rows, mixed
       rows add w to the d-diagonal; the symmetric (2 nc x 2 nc) cell block is
       inverted (batched numpy) and its Schur complement on the cell's
-      2 x 3p face unknowns computed.
+      2 x 3p face unknowns computed.  (With s the softer field's values the block carries mu_stiff in all four
+      sub-blocks and its d-part is the difference of such entries: for tensions 1e12 apart its inverse lost all
+      accuracy in the softer field, and Newton stalled at a residual of 1e-5.)
 
     The face system (SPD, 2 * p * #interior faces) is solved by sparse
     Cholesky; cell values and X3 are recovered cell by cell (active rows:
@@ -76,9 +78,15 @@ class CondensedHHOSystem(ComplementaritySystem):
             rows.append(r), cols.append(c), vals.append(v)
         self.face_solver = _FaceCholesky(2 * nf, np.concatenate(rows), np.concatenate(cols), np.concatenate(vals),
                                          self.fg, self.solver)
-        # coupled cell blocks in (s, d): x1 = s, x2 = s - d
-        self.Kzz = np.block([[(mu1 + mu2) * Acc, -mu2 * Acc], [-mu2 * Acc, mu2 * Acc]])
-        self.Kzf = np.block([[mu1 * Acf, mu2 * Acf], [np.zeros_like(Acf), -mu2 * Acf]])
+        # coupled cell blocks in (s, d): x1 = s, x2 = s - d (mu1 >= mu2), or x2 = s, x1 = s + d; the d-rows are those
+        # of field 2 (negated) or of field 1, the softer one
+        self.primary = 2 if mu2 > mu1 else 1
+        if self.primary == 1:
+            self.Kzz = np.block([[(mu1 + mu2) * Acc, -mu2 * Acc], [-mu2 * Acc, mu2 * Acc]])
+            self.Kzf = np.block([[mu1 * Acf, mu2 * Acf], [np.zeros_like(Acf), -mu2 * Acf]])
+        else:
+            self.Kzz = np.block([[(mu1 + mu2) * Acc, mu1 * Acc], [mu1 * Acc, mu1 * Acc]])
+            self.Kzf = np.block([[mu1 * Acf, mu2 * Acf], [mu1 * Acf, np.zeros_like(Acf)]])
         self.Kff = np.block([[mu1 * Aff, np.zeros_like(Aff)], [np.zeros_like(Aff), mu2 * Aff]])
         self.timings = {"condense": 0.0, "solve": 0.0, "recover": 0.0, "steps": 0}
 
@@ -118,8 +126,9 @@ class CondensedHHOSystem(ComplementaritySystem):
             eqc, mxc = EQ[cpl], MX[cpl]
             dd = nc + np.arange(nc)
             Kzz[:, dd, dd] += W[cpl]
+            d_load = -F2C[cpl] if self.primary == 1 else F1C[cpl]  # the d-rows: -(field 2) or field 1
             rz = np.concatenate([F1C[cpl] + F2C[cpl],
-                                 -F2C[cpl] + YF[cpl] + np.where(mxc, C0[cpl], 0.0)], axis=1)
+                                 d_load + YF[cpl] + np.where(mxc, C0[cpl], 0.0)], axis=1)
             tv = np.zeros((len(cpl), 2 * nc))
             tv[:, nc:] = np.where(eqc, T[cpl], 0.0)
             rz -= np.einsum("kij,kj->ki", Kzz, tv)
@@ -164,8 +173,12 @@ class CondensedHHOSystem(ComplementaritySystem):
         Y = YF.copy()
         if len(cpl):
             z = Kinv_rz - np.einsum("kij,kj->ki", KinvKzf, phil[cpl])
-            X1[cpl] = z[:, :nc]
-            X2[cpl] = z[:, :nc] - z[:, nc:]
+            if self.primary == 1:
+                X1[cpl] = z[:, :nc]
+                X2[cpl] = z[:, :nc] - z[:, nc:]
+            else:
+                X2[cpl] = z[:, :nc]
+                X1[cpl] = z[:, :nc] + z[:, nc:]
             Y[cpl] = np.where(mxc, C0[cpl] - W[cpl] * z[:, nc:], Y[cpl])
             # active rows: X3 = mu1 (A_CC X1 + A_CF X1F) - F1 (row of field 1)
             r_eq = mu1 * (np.einsum("kij,kj->ki", self.Acc[cpl], X1[cpl])
