@@ -369,13 +369,15 @@ def test_pcg_jacobi_resolves_rows_of_every_size():
 
 def test_inexact_modes_name_the_unresolved_soft_membrane():
     """mu2 / mu1 = 1e12, loads of the stiff membrane's size: multigrid-inexact stops the Newton CG on norms that
-    the stiff rows dominate, so the softer membrane's rows keep a residual of 3e-2 of its size.  The run is not
-    reported converged; its reason names the residual in the units of the field (before: converged, u1 off)."""
+    the stiff rows dominate, so the softer membrane's rows keep a residual above the certificate's tolerance in
+    their own units (measured: 3e-2 of its size while the active rows' multipliers came from the stiff membrane's
+    equations, 1.9e-7 > 1e-7 since they come from the soft one's).  The run is not reported converged; its reason
+    names the residual in the units of the field (before stop 49: converged, u1 off)."""
     result = run_scene(Scene(name="ratio", path=None, problem=disk_contact(mu1=1.0, mu2=1e12, A=1000.0)),
                        RunOptions(order=1, levels=2, newton="multigrid-inexact"))
     assert not result.converged
     assert "residual in the units of its field" in result.failures[-1]
-    assert result.rows[-1]["cert_equilibrium"] > 1e-3
+    assert result.rows[-1]["cert_equilibrium"] > result.rows[-1]["cert_tol"]
 
 
 @pytest.mark.parametrize("case", ["pressed", "constant"])
@@ -395,3 +397,23 @@ def test_equilibrium_counts_only_beyond_round_off(case):
         opts = dict(levels=2, tol=1e-13)
     result = run_scene(Scene(name=case, path=None, problem=problem), RunOptions(order=1, **opts))
     assert result.converged and all(r["certified"] == 1 for r in result.rows)
+
+
+@pytest.mark.parametrize("disc", ["sipg", "nipg", "hho"])
+@pytest.mark.parametrize("mu2", [1e9, 1e12])
+def test_broken_discretizations_resolve_membranes_with_tensions_far_apart(disc, mu2):
+    """dG and HHO (condensed, and uncondensed: the generic step), mu1 = 1 soft against mu2 = 1e9 / 1e12: every level
+    converges and is certified.  Before: the multiplier of an active row came from the slave's (u2's) equation,
+    (K x - F) of the stiff field's size cancelling to the soft field's size (1e-4 off at 1e12): SIPG / NIPG ran
+    into the iteration cap on level 2 ('the certificate not met'); the condensed HHO step stalled on every level."""
+    from ngcontact.drivers import RunOptions, run_scene
+    from ngcontact.problems.manufactured import disk_contact
+    from ngcontact.scenes import Scene
+
+    scene = Scene(name="far-apart", path=None, problem=disk_contact(1.0, mu2, A=1000.0))
+    runs = [dict(disc=disc, order=1, levels=3)] + ([dict(disc=disc, order=1, levels=2, condense=False)]
+                                                   if disc == "hho" else [])
+    for kw in runs:
+        res = run_scene(scene, RunOptions(**kw))
+        assert res.converged, kw
+        assert all(r["newton_converged"] == 1 and r["certified"] == 1 for r in res.rows), kw

@@ -140,7 +140,30 @@ class LinearizedStep:
             r = self._K_slaves @ x_new - s.F[self.slaves]
             sign = np.where(self.slave_is_lo, -1.0, 1.0)
             y_new[self.eq_rows] = r / (sign * s.D[self.eq_rows])
+            soft = self._soft_masters
+            if len(soft):  # rows whose master is far softer: its equation (the same y in exact arithmetic)
+                k = np.flatnonzero(soft)
+                m = self._masters[k]
+                rm = s.K[m] @ x_new - s.F[m]
+                y_new[self.eq_rows[k]] = rm / s.D[self.eq_rows[k]]
         return x_new, y_new
+
+    #: a master's equation gives y when its diagonal of K is below this share of the slave's
+    SOFT_MASTER = 1e-3
+
+    @property
+    def _soft_masters(self) -> np.ndarray:
+        """Mask over the eq rows: two-sided rows whose master (the upper field's unknown) has a diagonal of K below
+        :attr:`SOFT_MASTER` times the slave's.  The slave's equation (K x' - F)[slave] then subtracts terms of the
+        stiff field's size to give a multiplier of the soft field's size, and loses it (two membranes with tensions
+        1e12 apart: 1e-4 relative); the master's equation gives the same y without that cancellation."""
+        if not len(self.eq_rows) or not self.slave_is_lo.any():
+            return np.zeros(0, dtype=bool)
+        dK = self.system.K.diagonal()
+        m = self._masters
+        soft = self.slave_is_lo & (m >= 0)
+        soft[soft] = np.abs(dK[m[soft]]) < self.SOFT_MASTER * np.abs(dK[self.slaves[soft]])
+        return soft if soft.any() else np.zeros(0, dtype=bool)
 
     @property
     def _K_slaves(self) -> sp.csr_matrix:
