@@ -227,6 +227,20 @@ class _KrylovSession:
         self.adaptive = opt.mode == "adaptive"
         self.want_eta = self.adaptive or opt.log_estimators
         self.gmres_cum = 0
+        self.exact = False  # inexact mode after the cycling remedy: every later step solved to tol_alg
+
+    #: what :meth:`fresh` does, for the safeguards' log
+    refresh_label = "solve the steps to the gmres tolerance"
+
+    @property
+    def can_refresh(self) -> bool:
+        """Whether :meth:`fresh` changes anything: the inexact mode's steps stop at their forcing term."""
+        return self.opt.mode == "inexact" and not self.exact
+
+    def fresh(self) -> None:
+        """Solve every later step to the gmres mode's tolerance (a safeguard of the loop, :mod:`.safeguards`: steps
+        left at a forcing term can take Newton-min back to an earlier active set)."""
+        self.exact = True
 
     def step(self, k, x, y, c, Ca, Cb, res_prev) -> Trial:
         opt, system = self.opt, self.system
@@ -241,7 +255,7 @@ class _KrylovSession:
         z0 = lin.restrict(x)
         self.t_est, self.n_est = 0.0, 0
         accepted = {}
-        if opt.mode == "gmres":
+        if opt.mode == "gmres" or self.exact:
             target = opt.tol_alg * Bnorm                         # ||R^{k,i}|| <= tol_alg ||B^{k-1}||
         elif opt.mode == "inexact":
             eta_k = min(res_prev, opt.forcing_max)               # forcing ||Phi(X^{k-1})|| / ||F||

@@ -6,7 +6,9 @@
   itself from there on.  (The initial guess is not a Newton iterate; and a nonlinear system may come
   back to an active set while converging, which the residual test tells apart.)
   Remedies, in this order: solve the steps with a fresh factorization (an inexact PCG solve with a reused
-  factorization can flip a row back and forth, :mod:`ngcontact.algebra.reuse`), then continue with
+  factorization can flip a row back and forth, :mod:`ngcontact.algebra.reuse`) -- in the inexact Krylov mode:
+  solve them to the gmres mode's tolerance instead of the forcing term (the [CMAME20] rings, P1 on 19k
+  triangles, Newton-FB inexact: step 15 cycled and stopped at ||Phi||/||F|| = 3.9) --, then continue with
   Newton-FB and its line search (globally convergent on the merit function).
 * **Stalling** (Newton-FB): the Armijo line search fails (step < min_step).  Near degenerate rows
   (g = y = 0, e.g. the P2 vertices, whose dual-basis multiplier has a zero-mean partner) the FB direction
@@ -66,4 +68,5 @@ class Safeguards:
         return None
 
     def note(self, k: int, code: int, why: str) -> None:
-        self.log.append(f"iteration {k}: {why}: {REMEDIES[code]}")
+        label = getattr(self.session, "refresh_label", REMEDIES[code]) if code == 1 else REMEDIES[code]
+        self.log.append(f"iteration {k}: {why}: {label}")
