@@ -124,6 +124,18 @@ def test_condensed_and_full_solves_agree(scene, p):
     assert np.abs(a.y - b.y).max() <= 1e-10 * np.abs(b.y).max()
 
 
+def _steps_from_one_state(problem, dc, df, cfun, seed):
+    """One linearized step of the condensed system ``dc`` and of the generic one ``df`` from the same random state
+    near the exact solution (C-function ``cfun``)."""
+    rng = np.random.default_rng(seed)
+    x = dc.initial_guess([problem.exact.u1, problem.exact.u2])[0] + 1e-4 * rng.standard_normal(dc.system.n)
+    y = np.maximum(0.0, 1e-4 * rng.standard_normal(dc.system.m))
+    cf = get_cfunction(cfun)
+    g = dc.system.gap(x)
+    C, (Ca, Cb) = cf.value(g, y), cf.jacobian(g, y)
+    return dc.system.newton_step(x, y, C, Ca, Cb), df.system.newton_step(x, y, C, Ca, Cb)
+
+
 @pytest.mark.parametrize("cfun", ["min", "fb"])
 def test_condensed_newton_step_equals_generic_step(cfun):
     """One linearized step from the same state (FB: mixed rows included) in both systems."""
@@ -131,14 +143,7 @@ def test_condensed_newton_step_equals_generic_step(cfun):
     mesh = problem.domain.mesh(1)
     dc = HHODiscretization(problem, mesh, order=2, condense=True)
     df = HHODiscretization(problem, mesh, order=2, condense=False)
-    rng = np.random.default_rng(1)
-    x = dc.initial_guess([problem.exact.u1, problem.exact.u2])[0] + 1e-4 * rng.standard_normal(dc.system.n)
-    y = np.maximum(0.0, 1e-4 * rng.standard_normal(dc.system.m))
-    cf = get_cfunction(cfun)
-    g = dc.system.gap(x)
-    C, (Ca, Cb) = cf.value(g, y), cf.jacobian(g, y)
-    xc, yc, info = dc.system.newton_step(x, y, C, Ca, Cb)
-    xf, yf, _ = df.system.newton_step(x, y, C, Ca, Cb)
+    (xc, yc, info), (xf, yf, _) = _steps_from_one_state(problem, dc, df, cfun, seed=1)
     assert info.reduced_size == dc.ndof_sc
     assert np.abs(xc - xf).max() <= 1e-10 * np.abs(xf).max()
     assert np.abs(yc - yf).max() <= 1e-10 * np.abs(yf).max()
@@ -200,14 +205,7 @@ def test_condensed_step_with_the_stiffer_second_membrane_equals_generic_step(cfu
     dc = HHODiscretization(problem, mesh, order=2, condense=True)
     df = HHODiscretization(problem, mesh, order=2, condense=False)
     assert dc.system.primary == 2
-    rng = np.random.default_rng(2)
-    x = dc.initial_guess([problem.exact.u1, problem.exact.u2])[0] + 1e-4 * rng.standard_normal(dc.system.n)
-    y = np.maximum(0.0, 1e-4 * rng.standard_normal(dc.system.m))
-    cf = get_cfunction(cfun)
-    g = dc.system.gap(x)
-    C, (Ca, Cb) = cf.value(g, y), cf.jacobian(g, y)
-    xc, yc, _ = dc.system.newton_step(x, y, C, Ca, Cb)
-    xf, yf, _ = df.system.newton_step(x, y, C, Ca, Cb)
+    (xc, yc, _), (xf, yf, _) = _steps_from_one_state(problem, dc, df, cfun, seed=2)
     assert np.abs(xc - xf).max() <= 1e-10 * np.abs(xf).max()
     assert np.abs(yc - yf).max() <= 1e-10 * np.abs(yf).max()
 
