@@ -166,10 +166,47 @@ def test_errors_need_no_multiplier_function(solve_one):
     disc, sol = solve_one(problem, level=1, order=2)
     errs = disc.errors(sol.x, sol.y)
     assert disc._mass_solver is None
-    gfs = disc.gridfunctions(sol.x, sol.y)  # lam_h included: factorizes the mass matrix
+    gfs = disc.gridfunctions(sol.x, sol.y)  # lam_h included: a mass solve
     assert disc._mass_solver is not None
     e2 = 0.0
     for a, (name, mu) in enumerate(zip(problem.field_names, problem.mus)):
         d = problem.exact.gradient(a + 1) - grad(gfs[name])
         e2 += mu * Integrate(InnerProduct(d, d).Compile(), disc.mesh, order=2 * disc.order + disc.quad_bonus)
     assert errs["err_energy"] == pytest.approx(np.sqrt(e2), rel=1e-13)  # threaded sums: last bits
+
+
+@pytest.mark.parametrize("p", [2, 3, 4])
+def test_mass_solver_cg_then_cholesky(p, monkeypatch):
+    """lam_h = M^{-1} [X3; 0]: the first solves by Jacobi-CG equal the sparse Cholesky solve to round-off, in the
+    units of lam (rows by row), also for data scaled by 1e-8 and 1e8; the factorization comes at FACTOR_FROM, and a
+    CG run that misses its target within MAXITER hands over to it at once."""
+    from ngcontact.algebra.linalg import MassSolver, SPDSolver
+
+    problem = load_scene("test1").problem
+    disc = FEMDiscretization(problem, problem.domain.mesh(1), order=p)
+    M = disc.mass_nodal()
+    rng = np.random.default_rng(p)
+    direct = SPDSolver(M)
+    solver = MassSolver(M)
+    for k, scale in enumerate((1.0, 1e-8, 1e8, 1.0)):
+        b = scale * rng.standard_normal(M.shape[0])
+        ref = direct.solve(b)
+        got = solver.solve(b)
+        assert solver.factorized == (k + 1 >= MassSolver.FACTOR_FROM)
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * np.abs(ref).max())
+    assert not solver.factorized  # FACTOR_FROM = 5: four CG solves
+    solver.solve(b)
+    assert solver.factorized
+    monkeypatch.setattr(MassSolver, "MAXITER", 2)
+    short = MassSolver(M)
+    np.testing.assert_allclose(short.solve(b), direct.solve(b), rtol=0, atol=1e-11 * np.abs(direct.solve(b)).max())
+    assert short.factorized and short.calls == 1
+
+
+def test_mass_solver_names_a_bad_matrix():
+    import scipy.sparse as sp
+
+    from ngcontact.algebra.linalg import MassSolver
+
+    with pytest.raises(ValueError, match="non-positive diagonal"):
+        MassSolver(sp.diags([1.0, 0.0, 2.0]))

@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from ngsolve import (BilinearForm, CoefficientFunction, GridFunction, H1, InnerProduct, LinearForm, TaskManager,
                      dx, grad)
 
-from ..algebra.linalg import SPDSolver
+from ..algebra.linalg import MassSolver
 from ..algebra.multigrid import field_prolongation, p1_prolongation
 from ..algebra.sparse import submatrix
 from ..algebra.system import ComplementaritySystem
@@ -342,10 +342,11 @@ class FEMDiscretization(Discretization):
         return out
 
     def mass_nodal_solver(self):
-        """A solver of :meth:`mass_nodal` (sparse Cholesky, factorized once: every Newton iterate and estimate
-        reuses it; ``solve(b)``)."""
+        """A solver of :meth:`mass_nodal` (``solve(b)``; :class:`~ngcontact.algebra.linalg.MassSolver`: CG for the
+        first solves, e.g. lam_h of the one estimate of an adaptive level, then a sparse Cholesky factorization
+        that every further Newton iterate and estimate reuses)."""
         if self._mass_solver is None:
-            self._mass_solver = SPDSolver(self.mass_nodal())
+            self._mass_solver = MassSolver(self.mass_nodal())
         return self._mass_solver
 
     def gridfunctions(self, x, y) -> dict:
