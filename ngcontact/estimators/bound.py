@@ -96,7 +96,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional, Tuple
 
 import numpy as np
@@ -105,6 +105,7 @@ from ngsolve import L2, GridFunction, TaskManager
 from .dirichlet import TRACE_DEFECT_SHARE, dirichlet_lifting, trace_defect
 from .flux import FluxReconstruction, reconstruct, reconstruct_several, vertex_device_exact
 from .nonnegative import QuadratureArrays, concentrated_multiplier
+from .obstacle import shifted_obstacle
 from .options import EstimatorOptions
 from .terms import (Integrals, contact_work, corrected_fields, direct_root, flux_residual, flux_rule_order,
                     negative_part_squares, nonconformity, nonnegative_part)
@@ -163,6 +164,14 @@ class Estimate:
     eta_trace : float
         indicator of the Dirichlet data part that w_h leaves out (:func:`.dirichlet.trace_defect`; 0 for
         polynomial data); :attr:`bound_proven` compares it with eta.
+    eta_obstacle : float
+        obstacle problems with psi outside the FE space: |||psi - psi~||| when the bound for the interpolated
+        obstacle psi~ of :mod:`.obstacle` was the smaller one (then eta = eta(psi~) + eta_obstacle, and the other
+        fields are those of eta(psi~)); 0 otherwise.
+    obstacle_K : ndarray or None
+        the element parts of eta_obstacle^2 (enter ``eta_K``).
+    eta_plain_obstacle : float
+        the bound with psi itself when :func:`estimate` also evaluated psi~ (nan otherwise).
     """
 
     fields: Tuple[str, ...]
@@ -194,6 +203,9 @@ class Estimate:
     multiplier: str = ""
     eta_candidates: dict = field(default_factory=dict)
     eta_trace: float = 0.0
+    eta_obstacle: float = 0.0
+    obstacle_K: Optional[np.ndarray] = field(default=None, repr=False)
+    eta_plain_obstacle: float = float("nan")
 
     @property
     def bound_proven(self) -> bool:
@@ -231,6 +243,8 @@ class Estimate:
             loc = loc + np.maximum(self.nonc2_K, 0.0)
         if self.nonc1_K is not None:
             loc = loc + np.maximum(self.nonc1_K, 0.0)
+        if self.obstacle_K is not None:
+            loc = loc + self.obstacle_K
         return np.sqrt(loc)
 
     def cell_data(self) -> dict:
@@ -260,7 +274,7 @@ class Estimate:
         ``eta`` (guaranteed bound of |||u - u_h|||), ``eta_seed`` (the seed's
         Theorem), ``eta_F`` / ``eta_R`` ((sum_K sum_alpha eta_.,K,alpha^2)^(1/2)),
         ``eta_FR``, ``eta_C`` (sum_K eta_C,K^pos), ``eta_nonc1..3``,
-        ``eta_quad``, ``eta_bc``, ``eps_w``, ``eta_nonc2_seed``,
+        ``eta_quad``, ``eta_bc``, ``eps_w``, ``eta_obstacle``, ``eta_nonc2_seed``,
         ``time_estimate_s`` and, with an exact solution, ``i_eff``.
         """
         out = {
@@ -278,6 +292,7 @@ class Estimate:
             "eta_quad": self.eta_quad,
             "eta_bc": self.eta_bc,
             "eps_w": self.eps_w,
+            "eta_obstacle": self.eta_obstacle,
             "eta_trace": self.eta_trace,
             "bound_proven": int(self.bound_proven),
             "eta_nonc2_seed": self.eta_nonc2_seed,
@@ -314,6 +329,7 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
     sv = SolutionView.of(disc, x, y)
     q = opts.flux_degree(sv.disc.order)
     pair = None if flux is not None or opts.multiplier is not None else _candidates(sv.disc, q)
+    per_flux = {} if opts.shift_obstacle and sv.disc.obstacle is not None else None
     if pair:
         # two admissible multipliers, two guaranteed bounds: keep the smaller (module doc, "Multiplier")
         if opts.batched:  # both in one batched patch solve
@@ -322,7 +338,7 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
             fluxes = [reconstruct(sv, q, multiplier=m, batched=False, regularization=opts.regularization,
                                   boundary=opts.boundary_multiplier) for m in pair]
         shared = {}  # the terms that do not depend on the multiplier, evaluated once for both
-        both = [_bound(sv, q, opts, fl, shared) for fl in fluxes]
+        both = [_bound(sv, q, opts, fl, shared, per_flux) for fl in fluxes]
         est = min(both, key=lambda e: e.eta)
         est.multiplier = pair[0] if est is both[0] else pair[1]
         est.eta_candidates = {m: e.eta for m, e in zip(pair, both)}
@@ -331,7 +347,26 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
         if flux is None:
             flux = reconstruct(sv, q, multiplier=opts.multiplier, batched=opts.batched,
                                regularization=opts.regularization, boundary=opts.boundary_multiplier)
-        est = _bound(sv, q, opts, flux)
+        est = _bound(sv, q, opts, flux, per_flux=per_flux)
+        fluxes = [flux]
+    shifted = shifted_obstacle(sv) if opts.shift_obstacle else None
+    if shifted is not None:
+        est.eta_plain_obstacle = est.eta
+    if shifted is not None and shifted.eta < est.eta:
+        # the bound for the interpolated obstacle psi~ (+ |||psi - psi~|||): the smaller one wins
+        sv_t = replace(sv, disc=replace(sv.disc, obstacle=shifted.psi, obstacle_grad=shifted.grad))
+        shared_t = {}
+        cands = [_bound(sv_t, q, opts, fl, shared_t, per_flux) for fl in fluxes]
+        k = min(range(len(cands)), key=lambda i: cands[i].eta)
+        best = cands[k]
+        if best.eta + shifted.eta < est.eta:
+            if pair:
+                best.multiplier = pair[k]
+                best.eta_candidates = {m: e.eta + shifted.eta for m, e in zip(pair, cands)}
+            best.time_flux, best.eta_plain_obstacle = est.time_flux, est.eta
+            best.eta += shifted.eta
+            best.eta_obstacle, best.obstacle_K = shifted.eta, shifted.loc
+            est = best
     est.time_total = time.perf_counter() - t0
     if err_energy is None and errors:
         err_energy = sv.energy_error()
@@ -356,11 +391,13 @@ def _candidates(dv: DiscretizationView, q: int) -> Optional[Tuple[str, str]]:
 
 
 def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstruction,
-           shared: Optional[dict] = None) -> Estimate:
+           shared: Optional[dict] = None, per_flux: Optional[dict] = None) -> Estimate:
     """The estimate with the fluxes ``flux`` (module docstring); times and the error are set by the caller.
     ``shared``: a dict filled by the first call and read by the next ones with the same (sv, opts): the
     corrected fields and the terms independent of the multiplier (eta_nonc,2 seed, eta_nonc,1, Theta, the gap at the
-    quadrature points of :func:`.nonnegative.concentrated_multiplier`)."""
+    quadrature points of :func:`.nonnegative.concentrated_multiplier`).  ``per_flux``: a dict filled and read by the
+    calls for the same fluxes and two obstacles (:mod:`.obstacle`): the terms that do not depend on the obstacle
+    (the flux residuals and lam~ per flux, the seed's eta_nonc,2)."""
     dv = sv.disc
     p = dv.order
     fields, lam = flux.fields, flux.lam  # lam: the multiplier of the equilibration, lam^_h
@@ -372,8 +409,12 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         if not shared:
             shared = {} if shared is None else shared
             vals, grads, gap, ggap = corrected_fields(dv, fields, ws)
-            lam_d = sv.gfs["lam"]  # the discrete (dual-basis for p >= 2) multiplier of the seed
-            shared["seed"] = C_om * math.sqrt(max(float(negative_part_squares(ig, lam_d).sum()), 0.0))
+            if per_flux is None or "seed" not in per_flux:
+                lam_d = sv.gfs["lam"]  # the discrete (dual-basis for p >= 2) multiplier of the seed
+                seed = C_om * math.sqrt(max(float(negative_part_squares(ig, lam_d).sum()), 0.0))
+                if per_flux is not None:
+                    per_flux["seed"] = seed
+            shared["seed"] = seed if per_flux is None else per_flux["seed"]
             nc = nonconformity(sv, ig, gap, ggap, exact_bc=all(w is None for w in ws))
             shared.update(fields=(vals, grads, gap, ggap), nc=nc,
                           theta=contact_work(ig, fields, grads, nc.n, nc.grad_n, nc.support))
@@ -381,12 +422,17 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         nc = shared["nc"]
         nonc1, corr, nonc1_K = nc.eta, nc.n, nc.loc
         nonc2_seed, theta = shared["seed"], shared["theta"]
-        eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads, [fd.sign * lam for fd in fields],
-                                                       fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)),
-                                                       data_support=flux.lam_support)
-
-        # multiplier: lam~ >= 0 and eta_nonc,2
-        lam_t, nonc2, loc_K = nonnegative_part(ig, lam, flux.lam_order, eta_FR)
+        if per_flux is not None and id(flux) in per_flux:  # the flux is alive in the caller: its id is unique
+            eta_F, eta_R, eta_FR, eta_quad, (lam_t, nonc2, loc_K) = per_flux[id(flux)]
+        else:
+            eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads,
+                                                           [fd.sign * lam for fd in fields],
+                                                           fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)),
+                                                           data_support=flux.lam_support)
+            # multiplier: lam~ >= 0 and eta_nonc,2
+            lam_t, nonc2, loc_K = nonnegative_part(ig, lam, flux.lam_order, eta_FR)
+            if per_flux is not None:
+                per_flux[id(flux)] = (eta_F, eta_R, eta_FR, eta_quad, (lam_t, nonc2, loc_K))
         if opts.concentrates(p):
             # lam~ moved towards the small gaps inside every element (:func:`concentrated_multiplier`); lam~
             # vanishes where lam^ does (.nonnegative), so with lam^'s support known only its elements are visited

@@ -59,6 +59,9 @@ class EstimatorOptions:
     closed_form : bool
         :func:`.components.estimate_components` for P1 on affine elements: the element integrals in closed
         form from per-mesh arrays (:mod:`.affine_p1`; the same values to round-off); False: by quadrature.
+    shift_obstacle : bool
+        obstacle problems with an obstacle psi that is not in the FE space: :func:`.bound.estimate` also evaluates
+        the bound for the interpolated obstacle (:mod:`.obstacle`) and reports the smaller one.
     """
 
     flux_order: Optional[int] = None
@@ -73,6 +76,7 @@ class EstimatorOptions:
     res_tol: float = 1e-12
     boundary_multiplier: bool = True
     closed_form: bool = True
+    shift_obstacle: bool = True
 
     def __post_init__(self):
         def bad(name, want):
@@ -98,7 +102,7 @@ class EstimatorOptions:
             v = getattr(self, name)
             if v is not None and not positive(v):
                 bad(name, "a finite number > 0 or None")
-        for name in ("batched", "boundary_multiplier", "closed_form"):
+        for name in ("batched", "boundary_multiplier", "closed_form", "shift_obstacle"):
             if not isinstance(getattr(self, name), bool):
                 bad(name, "True or False")
         if not (isinstance(self.res_tol, (int, float)) and not isinstance(self.res_tol, bool)

@@ -339,7 +339,8 @@ def corrected_fields(dv: DiscretizationView, fields, ws):
     if dv.obstacle is None:
         return vals, grads, vals[0] - vals[1], grads[0] - grads[1]
     psi = dv.obstacle
-    return vals, grads, vals[0] - psi, grads[0] - CoefficientFunction((psi.Diff(x), psi.Diff(y)))
+    gpsi = dv.obstacle_grad if dv.obstacle_grad is not None else CoefficientFunction((psi.Diff(x), psi.Diff(y)))
+    return vals, grads, vals[0] - psi, grads[0] - gpsi
 
 
 def split(mus):

@@ -125,6 +125,7 @@ class DiscretizationView:
     system: object
     cache: dict = field(repr=False)
     _disc: object = field(repr=False)
+    obstacle_grad: Optional[CoefficientFunction] = None  # grad of ``obstacle`` (None: its Diff in x and y)
 
     @classmethod
     def of(cls, disc) -> "DiscretizationView":

@@ -1,0 +1,124 @@
+"""The bound for the interpolated obstacle (ngcontact/estimators/obstacle.py): obstacles outside the FE space.
+
+Full contact, u = psi, lam = LAM > 0 everywhere, f = -mu Lap psi - lam, g = psi on the boundary: the exact solution
+is psi itself (u - psi = 0, -mu Lap u - f = lam >= 0), and the discrete solution is the interpolant psi_h (every node
+active), so |||u - u_h||| = |||psi - psi_h|||.
+"""
+import math
+
+import numpy as np
+import pytest
+from ngsolve import BND, Integrate, cos, sin, x, y
+
+from ngcontact import CrissCrossSquare, ExactSolution, ObstacleProblem
+from ngcontact.discretizations.fem import FEMDiscretization
+from ngcontact.estimators import EstimatorOptions, estimate
+from ngcontact.estimators.obstacle import shifted_obstacle
+from ngcontact.estimators.view import SolutionView
+from ngcontact.newton import NewtonOptions, semismooth_newton
+from ngcontact.problems.manufactured import scale_problem
+from ngcontact.scenes import load_scene
+
+LAM = 10.0
+
+
+def _full_contact(psi, lap_psi, g=None):
+    return ObstacleProblem(domain=CrissCrossSquare(n0=4), psi=psi, f=-lap_psi - LAM, g=psi if g is None else g,
+                           mu=1.0, exact=ExactSolution(u1=psi, lam=LAM + 0 * x), name="full_contact_obstacle")
+
+
+def _sine():  # psi = 0 on the boundary: psi_h = psi on every Dirichlet edge
+    S = sin(math.pi * x) * sin(math.pi * y)
+    return _full_contact(S / (2 * math.pi ** 2), -S)
+
+
+def _cosine():  # psi not a polynomial on the boundary edges, contact up to the boundary
+    C = 0.1 * cos(x) * cos(y)
+    return _full_contact(C, -2 * C)
+
+
+def _solve(problem, level, p, constraints="nodal"):
+    disc = FEMDiscretization(problem, problem.domain.mesh(level), order=p, constraints=constraints)
+    sol = semismooth_newton(disc.system, *disc.initial_guess(None), NewtonOptions(tol=1e-12))
+    assert sol.converged
+    return disc, sol
+
+
+def _effectivities(problem, p, levels, constraints="nodal"):
+    out = []
+    for level in levels:
+        disc, sol = _solve(problem, level, p, constraints)
+        err = disc.errors(sol.x, sol.y)["err_energy"]
+        e = estimate(disc, sol.x, sol.y, EstimatorOptions(), err_energy=err)
+        plain = estimate(disc, sol.x, sol.y, EstimatorOptions(shift_obstacle=False), errors=False).eta
+        out.append((e.eta / err, plain / err, e.eta_obstacle / err, e))
+    return out
+
+
+@pytest.mark.parametrize("constraints", ["nodal", "bernstein"])
+def test_p3_full_contact_interpolated_obstacle_stays_efficient(constraints):
+    """P3: the bound with psi itself grows like h^-1 (its contact term is O(h^2)); the bound for psi_h plus
+    |||psi - psi_h||| (= the error here) stays at I_eff ~ 2 and above 1 (guaranteed)."""
+    rows = _effectivities(_sine(), 3, [0, 1, 2], constraints)
+    for (ieff, plain, obst, e), nxt in zip(rows, rows[1:] + [None]):
+        assert 1.0 <= ieff <= 2.3
+        assert obst == pytest.approx(1.0, rel=1e-6)  # u_h = psi_h: |||psi - psi_h||| is the error
+        assert e.eta_plain_obstacle / e.eta == pytest.approx(plain / ieff, rel=1e-9)
+        if nxt is not None:
+            assert nxt[1] > 1.8 * plain  # the plain bound: I_eff 25.6, 50.1, 99.4
+    assert rows[-1][1] > 40 * rows[-1][0]
+
+
+def test_p2_full_contact_effectivity_bounded():
+    """P2 (not every node active with the dual basis): I_eff 4.1-4.6 with the interpolated obstacle, against
+    6.9 -> 13.7 with psi itself."""
+    rows = _effectivities(_sine(), 2, [0, 1, 2])
+    assert all(1.0 <= r[0] <= 5.0 for r in rows)
+    assert rows[2][1] > 1.9 * rows[0][1]
+    assert rows[2][0] < 1.15 * rows[0][0]
+
+
+@pytest.mark.parametrize("scale", [1e-8, 1e8])
+def test_interpolated_obstacle_bound_is_scale_invariant(scale):
+    ref = _effectivities(_sine(), 3, [1])[0]
+    got = _effectivities(scale_problem(_sine(), data=scale), 3, [1])[0]
+    assert got[0] == pytest.approx(ref[0], rel=1e-8)
+    assert got[2] == pytest.approx(ref[2], rel=1e-8)
+
+
+def test_cutoff_leaves_the_dirichlet_data_alone():
+    """psi not a polynomial on the boundary: the cutoff vanishes at the Dirichlet vertices, so psi~ = psi there
+    (delta in H^1_0, the premise of the shift); the bound stays guaranteed and below the plain one."""
+    problem = _cosine()
+    disc, sol = _solve(problem, 2, 3)
+    sv = SolutionView.of(disc, sol.x, sol.y)
+    sh = shifted_obstacle(sv)
+    assert sh is not None
+    mesh = disc.mesh
+    on_bnd = Integrate((problem.psi - sh.psi) ** 2, mesh, BND, order=12)
+    assert on_bnd <= 1e-28 * float(Integrate(problem.psi ** 2, mesh, BND, order=12))
+    bnd_vertices = sorted({v.nr for el in mesh.Elements(BND) for v in el.vertices})
+    assert np.all(sh.cutoff.vec.FV().NumPy()[bnd_vertices] == 0.0)
+    err = disc.errors(sol.x, sol.y)["err_energy"]
+    e = estimate(disc, sol.x, sol.y, EstimatorOptions(), err_energy=err)
+    assert e.eta >= err
+    assert e.eta_obstacle > 0.0 and e.eta < 0.5 * e.eta_plain_obstacle
+
+
+def test_polynomial_obstacle_is_not_shifted():
+    """psi in P_p: psi_h = psi, nothing to shift (the estimate is the plain one)."""
+    problem = _full_contact(0.5 * x * (1 - x) * y, -1.0 * y)  # degree 3
+    disc, sol = _solve(problem, 1, 3)
+    assert shifted_obstacle(SolutionView.of(disc, sol.x, sol.y)) is None
+    e = estimate(disc, sol.x, sol.y, EstimatorOptions(), errors=False)
+    assert e.eta_obstacle == 0.0 and math.isnan(e.eta_plain_obstacle)
+
+
+def test_ex9_keeps_the_plain_bound():
+    """ex9 (hemisphere, moderate multiplier): the plain bound is the smaller one; the estimate is unchanged."""
+    problem = load_scene("ex9_obstacle").problem
+    disc, sol = _solve(problem, 1, 3)
+    e = estimate(disc, sol.x, sol.y, EstimatorOptions(), errors=False)
+    plain = estimate(disc, sol.x, sol.y, EstimatorOptions(shift_obstacle=False), errors=False)
+    assert e.eta_obstacle == 0.0
+    assert e.eta == plain.eta == e.eta_plain_obstacle
