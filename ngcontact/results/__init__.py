@@ -115,6 +115,8 @@ eta_bc, eps_w       Dirichlet data correction |||w_h||| and its non-orthogonalit
 eta_trace           indicator of the Dirichlet data part g - Pi g that the correction leaves out
 bound_proven        1, or 0 when eta_trace > 0.1 eta (then eta is not a proven bound; summary.json
                     "caveats" and the CLI's warning say why; ngcontact.estimators.dirichlet)
+eta_obstacle        obstacle outside the FE space: |||psi - psi~||| when the bound for the interpolated
+                    obstacle psi~ (+ this term) was the smaller one, else 0 (ngcontact.estimators.obstacle)
 eta_nonc2_seed      seed's C_{Omega,mu} ||lam_h^neg|| (diagnostic, not in eta)
 time_estimate_s     flux reconstruction + estimators
 i_eff               eta / err_energy                                  [exact only]
