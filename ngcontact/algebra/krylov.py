@@ -45,7 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["ILU", "KrylovState", "KrylovResult", "PreconditionerCache", "gmres", "cg"]
+__all__ = ["ILU", "KrylovState", "KrylovResult", "PreconditionerCache", "gmres", "cg", "units_scale", "UNITS_SPREAD"]
 
 
 class ILU:
@@ -142,6 +142,24 @@ class KrylovResult:
     res: float
     res_history: List[float] = field(default_factory=list)
     time: float = 0.0
+
+
+#: Krylov residuals in the units of x (Jacobi-weighted) when max / min of the matrix's diagonal exceeds this: rows
+#: of very different size (two membranes with tensions far apart), where the plain 2-norm lets the stiff rows decide
+UNITS_SPREAD = 1e6
+
+
+def units_scale(A) -> Optional[np.ndarray]:
+    """1 / diag(A) when the (positive) diagonal of A spans more than :data:`UNITS_SPREAD`, else None: the weights of
+    residuals in the units of x (``D^{-1} r``) for the Krylov solves of the Newton steps."""
+    d = np.asarray(A.diagonal(), dtype=float)
+    if not len(d) or not np.all(d > 0.0) or d.max() <= UNITS_SPREAD * d.min():
+        return None
+    return 1.0 / d
+
+
+def _norm2(v) -> float:
+    return float(np.linalg.norm(v))
 
 
 def _krylov_start(A, b, x0, M):
@@ -258,7 +276,8 @@ def gmres(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: fl
 
 
 def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float = 1e-10, maxiter: int = 5000,
-       nu: int = 10, monitor: Optional[Callable[[KrylovState], bool]] = None) -> KrylovResult:
+       nu: int = 10, monitor: Optional[Callable[[KrylovState], bool]] = None,
+       weights: Optional[np.ndarray] = None) -> KrylovResult:
     """Preconditioned conjugate gradients for SPD A (SPD preconditioner ``M.solve``), with the interface of
     :func:`gmres`: ``monitor(KrylovState)`` at i = 0 and every ``nu`` iterations sees the iterate and its
     true residual and may stop the iteration; the result's residuals are true residuals.
@@ -266,10 +285,18 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
     The recursively updated residual decides the tolerance test; at a stop it is recomputed, and if the
     true residual is still above the tolerance the iteration continues from it (residual replacement) or,
     when that does not halve it any more, stops with ``"stagnation"`` (round-off floor).  The monitor's
-    true residuals do not change the iteration (no restart: CG keeps its conjugacy).
+    true residuals do not change the iteration (no restart: CG keeps its conjugacy).  ``weights``: the residuals
+    (tests, history, the monitor's) are ||weights * r|| / ||weights * b|| instead of the 2-norm (e.g. 1 / diag(A):
+    row by row in the units of x); the iteration is the same.
     """
     t0 = time.perf_counter()
     prec, x, scale, r, rnorm = _krylov_start(A, b, x0, M)
+    if weights is not None:
+        def norm(v):
+            return float(np.linalg.norm(weights * v))
+        scale, rnorm = (norm(b) or 1.0), norm(r)
+    else:
+        norm = _norm2
     hist = [rnorm / scale]
     i = 0
 
@@ -289,16 +316,16 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
         pq = float(p @ q)
         if not pq > 0.0:  # A or M not SPD on this vector (or p = 0): nothing more to gain
             r = b - A @ x
-            hist[-1] = float(np.linalg.norm(r)) / scale
+            hist[-1] = norm(r) / scale
             return finish("stagnation")
         alpha = rz / pq
         x += np.multiply(p, alpha, out=work)
         r -= np.multiply(q, alpha, out=work)
         i += 1
-        hist.append(float(np.linalg.norm(r)) / scale)
+        hist.append(norm(r) / scale)
         if monitor is not None and i % nu == 0:  # the monitor sees the true residual; CG goes on unchanged
             r_true = b - A @ x
-            hist[-1] = float(np.linalg.norm(r_true)) / scale
+            hist[-1] = norm(r_true) / scale
             if monitor(KrylovState(i, x, r_true, hist[-1])):
                 r = r_true
                 return finish("monitor")
@@ -307,7 +334,7 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
                 return finish("tolerance")
         elif hist[-1] <= rtol:
             r = b - A @ x  # the recursion says converged: check the true residual
-            hist[-1] = float(np.linalg.norm(r)) / scale
+            hist[-1] = norm(r) / scale
             if hist[-1] <= rtol:
                 return finish("tolerance")
             if hist[-1] > 0.5 * last_true / scale:  # replacement no longer gains: round-off floor
@@ -322,5 +349,5 @@ def cg(A, b: np.ndarray, x0: Optional[np.ndarray] = None, M=None, *, rtol: float
         p += z
         rz = rz_new
     r = b - A @ x
-    hist[-1] = float(np.linalg.norm(r)) / scale
+    hist[-1] = norm(r) / scale
     return finish("tolerance" if hist[-1] <= rtol else "maxiter")

@@ -425,9 +425,10 @@ def _bound(sv: SolutionView, q: int, opts: EstimatorOptions, flux: FluxReconstru
         if per_flux is not None and id(flux) in per_flux:  # the flux is alive in the caller: its id is unique
             eta_F, eta_R, eta_FR, eta_quad, (lam_t, nonc2, loc_K) = per_flux[id(flux)]
         else:
+            corrected = any(w is not None for w in ws)
             eta_F, eta_R, eta_FR, eta_quad = flux_residual(ig, fields, flux.sigma, grads,
                                                            [fd.sign * lam for fd in fields],
-                                                           fl_rule=flux_rule_order(dv, q, any(w is not None for w in ws)),
+                                                           fl_rule=flux_rule_order(dv, q, corrected),
                                                            data_support=flux.lam_support)
             # multiplier: lam~ >= 0 and eta_nonc,2
             lam_t, nonc2, loc_K = nonnegative_part(ig, lam, flux.lam_order, eta_FR)

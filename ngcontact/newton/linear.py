@@ -27,7 +27,13 @@ estimators at the accepted iterate.
     eta_lin) (:func:`~.stopping.stop_linear`) and X^k := X^{k,i}.
 
   GMRES counts are the iterations performed (look-ahead included); the index of the accepted
-  iterate is recorded as ``gmres_accepted``.  The estimators come from the driver (``estimator``:
+  iterate is recorded as ``gmres_accepted``.  Rule for rows of very different size (tensions far apart):
+  when the diagonal of the reduced matrix spans more than :data:`~ngcontact.algebra.krylov.UNITS_SPREAD`, GMRES +
+  ILU solve the left Jacobi-scaled system D^{-1} A z = D^{-1} b, so that the residual it minimizes and tests (with the
+  same relative tolerances) is in the units of u row by row (CG: the same iteration, its residuals measured
+  as ||D^{-1} r||, which keeps A symmetric); in the plain 2-norm the stiff rows dominate
+  and the soft membrane stayed unresolved (tensions 1e9 / 1e12 apart: Newton-min cycled or stopped on the
+  certificate).  The estimators come from the driver (``estimator``:
   an object with ``components(x, y, r_alg, dx_lookahead)``); this layer imports none.
 """
 from __future__ import annotations
@@ -38,8 +44,9 @@ from dataclasses import dataclass, field
 from typing import List, Optional
 
 import numpy as np
+import scipy.sparse as sp
 
-from ..algebra.krylov import ILU, KrylovState, cg, gmres
+from ..algebra.krylov import ILU, KrylovState, cg, gmres, units_scale
 from ..algebra.reuse import FactorReuse
 from ..algebra.system import LINEAR_PATHS
 from .base import IterationRecord, option_error
@@ -247,23 +254,32 @@ class _KrylovSession:
         lin = system.linearize(x, y, c, Ca, Cb)
         Bnorm = rhs_norm(system, x, y, c, Ca, Cb)
         bred = float(np.linalg.norm(lin.b)) or 1.0
+        A, b = lin.A, lin.b
+        scale = units_scale(A)
+        weights = scale if opt.method == "cg" else None  # CG: the same iteration, its residuals weighted
+        if scale is not None and weights is None:  # GMRES: on the scaled system (residuals in the units of u)
+            A, b = (sp.diags(scale) @ A).tocsr(), scale * b
+        self.A, self.b, self.weights = A, b, weights
+
+        def norm(v):
+            return float(np.linalg.norm(v if weights is None else weights * v))
         build = (lambda: _MultigridPreconditioner(lin, opt.prolongations)) if opt.method == "cg" else \
-            (lambda: ILU(lin.A, opt.ilu_drop_tol, opt.ilu_fill))
+            (lambda: ILU(A, opt.ilu_drop_tol, opt.ilu_fill))
         M, reused = (build(), False) if opt.preconditioner_cache is None else \
-            opt.preconditioner_cache.get(lin.A, build, extra=getattr(lin, "keep", None))
+            opt.preconditioner_cache.get(A, build, extra=getattr(lin, "keep", None))
         time_setup = 0.0 if reused else M.time_setup
         z0 = lin.restrict(x)
         self.t_est, self.n_est = 0.0, 0
         accepted = {}
+        floor = 1e-14 * Bnorm / bred  # attainable accuracy in double precision
         if opt.mode == "gmres" or self.exact:
-            target = opt.tol_alg * Bnorm                         # ||R^{k,i}|| <= tol_alg ||B^{k-1}||
+            rtol = opt.tol_alg * Bnorm / bred                    # ||R^{k,i}|| <= tol_alg ||B^{k-1}||
         elif opt.mode == "inexact":
             eta_k = min(res_prev, opt.forcing_max)               # forcing ||Phi(X^{k-1})|| / ||F||
-            target = eta_k * float(np.linalg.norm(lin.b - lin.A @ z0))  # ||R^{k,i}|| <= eta_k ||R^{k,0}||
+            rtol = eta_k * norm(b - A @ z0) / (norm(b) or 1.0)  # ||R^{k,i}|| <= eta_k ||R^{k,0}||
         else:
-            target = 1e-14 * Bnorm  # adaptive: the estimators stop GMRES; this only guards stagnation
-        target = max(target, 1e-14 * Bnorm)  # attainable accuracy in double precision
-        rtol = target / bred  # ||r_red|| = ||R^{k,i}|| (module docstring)
+            rtol = floor  # adaptive: the estimators stop GMRES; this only guards stagnation
+        rtol = max(rtol, floor)  # relative to ||b_red|| (||r_red|| = ||R^{k,i}||, module docstring), or scaled alike
 
         monitor = None
         if self.adaptive:
@@ -291,9 +307,9 @@ class _KrylovSession:
 
         tl = time.perf_counter()
         if opt.method == "cg":
-            kr = cg(lin.A, lin.b, z0, M, rtol=rtol, maxiter=opt.max_gmres, nu=opt.nu, monitor=monitor)
+            kr = cg(A, b, z0, M, rtol=rtol, maxiter=opt.max_gmres, nu=opt.nu, monitor=monitor, weights=weights)
         else:
-            kr = gmres(lin.A, lin.b, z0, M, rtol=rtol, restart=opt.restart, maxiter=opt.max_gmres, nu=opt.nu,
+            kr = gmres(A, b, z0, M, rtol=rtol, restart=opt.restart, maxiter=opt.max_gmres, nu=opt.nu,
                        monitor=monitor)
         time_linear = time.perf_counter() - tl - self.t_est + time_setup
         self.gmres_cum += kr.iterations
@@ -325,10 +341,9 @@ class _KrylovSession:
                 if self.kr.reason != "tolerance" or opt.mode == "inexact":
                     # sigma_alg from nu further iterations (diagnostic look-ahead, not counted)
                     if opt.method == "cg":
-                        extra = cg(self.lin.A, self.lin.b, self.kr.x, self.M, rtol=0.0, maxiter=opt.nu)
+                        extra = cg(self.A, self.b, self.kr.x, self.M, rtol=0.0, maxiter=opt.nu, weights=self.weights)
                     else:
-                        extra = gmres(self.lin.A, self.lin.b, self.kr.x, self.M, rtol=0.0, restart=opt.nu,
-                                      maxiter=opt.nu)
+                        extra = gmres(self.A, self.b, self.kr.x, self.M, rtol=0.0, restart=opt.nu, maxiter=opt.nu)
                     xj, _ = self.lin.recover(extra.x)
                     dx = xj - x
             comp = opt.estimator.components(x, y, r_alg, dx)

@@ -63,7 +63,7 @@ from typing import Tuple
 
 import numpy as np
 
-from ..algebra.krylov import cg
+from ..algebra.krylov import cg, units_scale
 from ..algebra.linalg import PCGResult, pcg
 from ..algebra.multigrid import SMOOTHERS, AlgebraicMultigrid, HierarchyCache
 from ..algebra.relax import FreeBoundaryRelaxation
@@ -211,7 +211,9 @@ class _MultigridSession:
                 res, stopped_early = self._early_exit(lin.A, lin.b, z0, mg, target,
                                                       lambda z: np.less_equal(*system.pair(*lin.recover(z))), lin.eq)
             else:
-                res = pcg(lin.A, lin.b, mg, z0, rtol=target / bnorm, maxiter=opt.maxiter)
+                # inexact: for rows of very different size the forcing test also in the units of u (krylov.UNITS_SPREAD)
+                res = pcg(lin.A, lin.b, mg, z0, rtol=target / bnorm, maxiter=opt.maxiter,
+                          jacobi=opt.mode == "inexact" and units_scale(lin.A) is not None)
             its = res.iterations
             fields["cg_early"] = int(stopped_early)
             if opt.mode == "exact" and not stopped_early:
