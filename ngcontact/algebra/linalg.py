@@ -18,8 +18,8 @@ import scipy.sparse.linalg as spla
 
 from .sparse import abs_matrix, abs_row_sums
 
-__all__ = ["SPDSolver", "MassSolver", "FixedPatternCholesky", "SOLVERS", "FACTORIZATIONS", "ngsolve_coo", "sparse_solve", "pcg",
-           "PCGResult"]
+__all__ = ["SPDSolver", "MassSolver", "FixedPatternCholesky", "SOLVERS", "FACTORIZATIONS", "ngsolve_coo", "sparse_solve",
+           "pcg", "PCGResult"]
 
 SOLVERS = ("sparsecholesky", "scipy")
 #: methods of :func:`sparse_solve`
