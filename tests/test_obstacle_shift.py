@@ -122,3 +122,17 @@ def test_ex9_keeps_the_plain_bound():
     plain = estimate(disc, sol.x, sol.y, EstimatorOptions(shift_obstacle=False), errors=False)
     assert e.eta_obstacle == 0.0
     assert e.eta == plain.eta == e.eta_plain_obstacle
+
+
+def test_curved_disk_full_contact_to_the_boundary():
+    """Curved P3 elements, psi not a polynomial on the (curved) Dirichlet boundary, contact up to it: the cutoff
+    vanishes at every boundary vertex, so only the interior gains (I_eff 85.7 against 182 at level 1; the boundary
+    layer keeps the plain contact term, O(h^{(p+2)/2})); the bound stays guaranteed."""
+    from ngcontact.domains import UnitDisk
+
+    C = 0.1 * cos(x) * cos(y)
+    problem = ObstacleProblem(domain=UnitDisk(maxh=0.3), psi=C, f=2 * C - LAM, g=C, mu=1.0,
+                              exact=ExactSolution(u1=C, lam=LAM + 0 * x), name="disk_obstacle")
+    ieff, plain, obst, e = _effectivities(problem, 3, [1])[0]
+    assert 1.0 <= ieff < 0.6 * plain
+    assert 0.0 < obst < 1.0
