@@ -116,3 +116,23 @@ def test_read_history_keeps_names_and_numbers(tmp_path):
     assert [r["multiplier"] for r in back] == ["shape", "fit"]
     assert [r["multiplier_candidates"] for r in back] == [2, 1] and back[0]["eta"] == 0.25
     assert back[1]["eta"] != back[1]["eta"] and list(back[0]) == ["level", "ndof", "multiplier", "multiplier_candidates", "eta"]
+
+
+def test_adaptive_speed_break_even():
+    """The break-even cost per estimate: (wall(inexact) - (wall(adaptive) - estimating)) / estimates, per tag and
+    degree; a CG pair whose adaptive run is slower even without its estimates gets a negative break-even."""
+    from ngcontact.studies.adaptive_speed import break_even_lines
+
+    def row(tag, mode, wall, est=0.0, n=0, order=1):
+        return dict(tag=tag, order=order, mode=mode, fitted=True, nelem=100, wall_s=wall, time_estimate_s=est,
+                    n_estimates=n)
+
+    rows = [row("a", "inexact", 4.0), row("a", "adaptive", 10.0, est=6.0, n=20), row("b", "inexact", 4.0),
+            row("a", "inexact-cg", 1.0), row("a", "adaptive-cg", 5.0, est=3.0, n=10), row("a", "direct", 2.0)]
+    lines = break_even_lines(rows)
+    body = [ln for ln in lines if ln.startswith("| a ")]
+    assert body == ["| a | 1 | 100 fitted | adaptive | 20 | 0.300 | 0.000 | - |",
+                    "| a | 1 | 100 fitted | adaptive-cg | 10 | 0.300 | -0.100 | - |"]
+    rows[1]["wall_s"] = 9.0  # 3 s outside the estimates: break-even (4 - 3) / 20 = 0.05 s, cost 0.3 s: 6x
+    assert "| a | 1 | 100 fitted | adaptive | 20 | 0.300 | 0.050 | 6.0 |" in break_even_lines(rows)
+    assert break_even_lines([row("a", "inexact", 4.0)]) == []

@@ -21,7 +21,7 @@ import json
 import time
 from pathlib import Path
 
-__all__ = ["MAXH", "measure", "write_table", "main"]
+__all__ = ["MAXH", "measure", "write_table", "break_even_lines", "main"]
 
 #: the finest meshes of results/inexact/TABLES.md per FE degree
 MAXH = {1: 0.0148, 2: 0.0165}
@@ -85,7 +85,36 @@ def write_table(rows: list, path: Path, command: str) -> None:
                      f"{r['gmres'] or '-'} | "
                      f"{r['err_energy']:.6e} | {ratio} | {r['n_estimates'] or '-'} | {r['time_estimate_s']:.1f} | "
                      f"{r['time_solve_s']:.1f} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} |")
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines + break_even_lines(rows)) + "\n")
+
+
+#: adaptive mode -> the inexact mode it is compared with (same Krylov method)
+PAIRS = {"adaptive": "inexact", "adaptive-cg": "inexact-cg"}
+
+
+def break_even_lines(rows: list) -> list:
+    """The table of the cost of one estimate against the cost at which the adaptive mode would tie with the inexact
+    one of the same run (tag, degree, mesh): (wall(inexact) - (wall(adaptive) - estimating)) / estimates."""
+    out = ["", "Cost of one estimator evaluation against its break-even: the cost per estimate at which the adaptive "
+           "mode's wall time would equal the inexact mode's of the same tag (its other work unchanged); "
+           "<= 0: not faster even with free estimates.", "",
+           "| tag | P | elements | adaptive mode | estimates | s per estimate | break-even s per estimate | "
+           "ratio |", "|---|---|---|---|---|---|---|---|"]
+    found = False
+    for r in rows:
+        base = PAIRS.get(r["mode"])
+        ref = next((d for d in rows if base and d["mode"] == base and d["tag"] == r["tag"]
+                    and d["order"] == r["order"] and d.get("fitted", False) == r.get("fitted", False)), None)
+        n = r.get("n_estimates") or 0
+        if ref is None or not n:
+            continue
+        found = True
+        cost = r["time_estimate_s"] / n
+        even = (ref["wall_s"] - (r["wall_s"] - r["time_estimate_s"])) / n
+        mesh = f"{r['nelem']} fitted" if r.get("fitted", False) else f"{r['nelem']}"
+        ratio = f"{cost / even:.1f}" if even > 0 else "-"
+        out.append(f"| {r['tag']} | {r['order']} | {mesh} | {r['mode']} | {n} | {cost:.3f} | {even:.3f} | {ratio} |")
+    return out if found else []
 
 
 def main(argv=None) -> None:
