@@ -366,6 +366,7 @@ def estimate(disc, x, y, options: Optional[EstimatorOptions] = None, *, err_ener
             best.time_flux, best.eta_plain_obstacle = est.time_flux, est.eta
             best.eta += shifted.eta
             best.eta_obstacle, best.obstacle_K = shifted.eta, shifted.loc
+            best.eta_trace = math.hypot(best.eta_trace, shifted.eta_trace)  # psi's trace defect too (.obstacle)
             est = best
     est.time_total = time.perf_counter() - t0
     if err_energy is None and errors:

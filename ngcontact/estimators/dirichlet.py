@@ -98,7 +98,8 @@ def _element_dofs(space, elements) -> np.ndarray:
     return np.concatenate([np.asarray(r, dtype=np.int64) for r in rows])
 
 
-def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, layers: Optional[int] = None):
+def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: Optional[int],
+                         layers: Optional[int] = None):
     """Liftings w_h in P_k of the Dirichlet data error, discrete harmonic in a boundary strip (module doc).
 
     Parameters
@@ -107,7 +108,8 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
     fields : sequence of FieldData
         the fields (u_ah and g_a).
     k, rt_order : int
-        degree of w_h; rho = curl phi with phi in P_{rt_order + 1}.
+        degree of w_h; rho = curl phi with phi in P_{rt_order + 1} (``rt_order`` None: the liftings only, eps_w = 0
+        and bc_K the parts of eta_bc^2 alone).
     layers : int, optional
         strip width (default :func:`strip_layers` of the discretization's degree).
 
@@ -159,15 +161,16 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
     # divergence-free rho = curl phi, phi in P_{q+1} on the strip, phi = 0 on its inner boundary (so that
     # rho . n = 0 there and rho extended by zero is in H(div)); no inner boundary: the tiny mass term
     # fixes the constant
-    W = H1(mesh, order=rt_order + 1)
-    free_w = np.zeros(W.ndof, dtype=bool)
-    free_w[_element_dofs(W, strip)] = True
-    if inner:
-        free_w[_element_dofs(W, halo)] = False
-    ph, ps = W.TnT()
-    curl_ps = CoefficientFunction((grad(ps)[1], -grad(ps)[0]))
-    c = BilinearForm(grad(ph) * grad(ps) * dxs + (0.0 if inner else 1e-10) * ph * ps * dxs).Assemble()
-    cinv = c.mat.Inverse(bit_array(free_w), inverse="sparsecholesky")
+    if rt_order is not None:
+        W = H1(mesh, order=rt_order + 1)
+        free_w = np.zeros(W.ndof, dtype=bool)
+        free_w[_element_dofs(W, strip)] = True
+        if inner:
+            free_w[_element_dofs(W, halo)] = False
+        ph, ps = W.TnT()
+        curl_ps = CoefficientFunction((grad(ps)[1], -grad(ps)[0]))
+        c = BilinearForm(grad(ph) * grad(ps) * dxs + (0.0 if inner else 1e-10) * ph * ps * dxs).Assemble()
+        cinv = c.mat.Inverse(bit_array(free_w), inverse="sparsecholesky")
     bc2 = eps2 = 0.0
     loc = np.zeros(mesh.ne)
     for fd, w in zip(fields, ws):
@@ -176,12 +179,14 @@ def dirichlet_correction(dv: DiscretizationView, fields, k: int, rt_order: int, 
         r = w.vec.CreateVector()
         r.data = a.mat * w.vec
         w.vec.data -= inv * r  # discrete harmonic in the strip: (grad w, grad v) = 0 for v in P_k, v = 0 off it
-        phi = GridFunction(W, name=f"phi_{fd.name}")
-        phi.vec.data = cinv * LinearForm(-grad(w) * curl_ps * dxs).Assemble().vec
-        rho = CoefficientFunction((grad(phi)[1], -grad(phi)[0]))  # div rho = 0
         # w and rho vanish off the strip (their dofs are those of strip elements): integrals on the strip only
         b_K = fd.mu * Integrate(grad(w) * grad(w) * dxs, mesh, element_wise=True).NumPy()
-        e_K = fd.mu * Integrate((grad(w) + rho) ** 2 * dxs, mesh, element_wise=True).NumPy()
+        e_K = np.zeros(mesh.ne)
+        if rt_order is not None:
+            phi = GridFunction(W, name=f"phi_{fd.name}")
+            phi.vec.data = cinv * LinearForm(-grad(w) * curl_ps * dxs).Assemble().vec
+            rho = CoefficientFunction((grad(phi)[1], -grad(phi)[0]))  # div rho = 0
+            e_K = fd.mu * Integrate((grad(w) + rho) ** 2 * dxs, mesh, element_wise=True).NumPy()
         bc2 += float(b_K.sum())
         eps2 += float(e_K.sum())
         loc += b_K + e_K
@@ -204,11 +209,12 @@ def dirichlet_lifting(dv: DiscretizationView, fields, mode):
     return dv.cache[key]
 
 
-def trace_defect(dv: DiscretizationView, fields, k: int) -> float:
+def trace_defect(dv: DiscretizationView, fields, k: int, key=None) -> float:
     """The indicator eta_tr of the Dirichlet data part g - Pi_k g that a lifting of degree ``k`` leaves out (module
     doc), with g taken as its boundary projection of degree k + :data:`TRACE_DEFECT_EXTRA`; cached per
-    discretization and ``k``.  Boundary-only spaces: the cost is that of the Dirichlet edges."""
-    key = ("trace", k)
+    discretization and ``k`` (or under ``key``: data other than the fields' own, e.g. an obstacle's trace).
+    Boundary-only spaces: the cost is that of the Dirichlet edges."""
+    key = ("trace", k) if key is None else key
     if key in dv.cache:
         return dv.cache[key]
     mesh = dv.mesh
