@@ -54,7 +54,8 @@ class LevelEstimator:
 
     def components(self, x, y, r_alg, dx):
         sig = None if dx is None else algebraic_flux(self.disc, dx, self.options)
-        return estimate_components(self.disc, x, y, r_alg=r_alg, sigma_alg=sig, options=self.options)
+        return estimate_components(self.disc, x, y, r_alg=r_alg, sigma_alg=sig, options=self.options,
+                                   shift_obstacle=True)
 
 
 @dataclass

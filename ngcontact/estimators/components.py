@@ -122,6 +122,7 @@ from .flux import (PatchData, equilibrate_all, flux_bonus, patch_regularization,
 from .moments import data_rules, p1_from_functional, vertex_function_values, vertex_moment_term, vertex_rule
 from .multipliers import ContactMultiplier, PatchContactMultiplier
 from .nonnegative import concentrated_multiplier
+from .obstacle import shifted_obstacle
 from .options import EstimatorOptions
 from .terms import (Integrals, admissible_correction, contact_work, corrected_fields, defect_norm, direct_root,
                     flux_residual, nonnegative_part, split)
@@ -339,7 +340,7 @@ def _contact_terms(ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, 
 
 
 def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Optional[EstimatorOptions] = None,
-                        errors: bool = False) -> Components:
+                        errors: bool = False, shift_obstacle: bool = False) -> Components:
     """eta_disc, eta_lin, eta_alg of an arbitrary iterate X^{k,i} (seed Corollary; module docstring).
 
     Parameters
@@ -365,6 +366,11 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
         RT degree q of sigma_disc (``flux_order``), Dirichlet correction, quadrature, patch solver, ...
     errors : bool
         also compute |||u - u_h||| (exact solution needed) for ``i_eff``.
+    shift_obstacle : bool
+        stationary obstacle problems (with ``options.shift_obstacle``): also the bound for the interpolated obstacle
+        psi~ of :mod:`.obstacle`, |||psi - psi~||| added to eta_disc; the variant with the smaller eta_disc + eta_lin
+        is returned (``terms["eta_obstacle"]`` > 0 when it is the shifted one).  Off for the parabolic estimators,
+        for which the shift argument is not made.
 
     Returns
     -------
@@ -413,47 +419,59 @@ def estimate_components(disc, x, y, *, r_alg=None, sigma_alg=None, options: Opti
             c = dv.interior_function(neg, "gap_neg_nodal")
             loc_l = weight * np.maximum(ar.grad_sq(c) if ar else ig.ew(grad(c) * grad(c), dx), 0.0)
             d_l = math.sqrt(float(loc_l.sum()))
-            gap_s, ggap_s = gap + c, ggap + grad(c)
         else:
             c, loc_l, d_l = None, np.zeros(mesh.ne), 0.0
-            gap_s, ggap_s = gap, ggap
-        d_d, corr_d, support_d = admissible_correction(ig, mus, gap_s, ggap_s,
-                                                       exact_polynomial_gap=(p == 1 and exact_bc))
-
-        # ------------------------------------------------------------ contact terms
-        # lam~ moved towards the small gaps in every element, as in :func:`.bound.estimate`
-        # (the mean-free defect goes to eta_nonc2,disc)
-        if ar is not None:  # no s~ - s_h correction (P1 gap, exact data), no concentration
-            eta_C, nonc3_l, theta_l = ar.contact(fields, lam_t, c, split(mus)[0], load_order)
-            nonc3_d, theta_d = 0.0, 0.0
-        else:
-            eta_C, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l = _contact_terms(
-                ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, corr_d, c,
-                eta_FR + eta_quad + nonc2_d + nonc2_l + 2.0 * (d_d + d_l), nonc2_d, support_d)
-        sum_C = float(eta_C.sum())
         P_lin = 2.0 * float((dv.D * np.maximum(sv.y, 0.0) * g_nodal).sum())  # discrete complementarity product
-    # 2P = sum_C + nonc3 = (sum_C - P_lin + nonc3_d) + (P_lin + nonc3_l) <= 2P_disc + 2P_lin
-    twoP_d = max(sum_C - P_lin + nonc3_d, 0.0)
-    twoP_l = max(P_lin + nonc3_l, 0.0)
-
-    E_d = math.hypot(eta_FR + eta_quad + nonc2_d + d_d, math.sqrt(twoP_d))
-    eta_disc = math.hypot(E_d + d_d + eps_w, eta_bc)
-    eta_lin = math.hypot(nonc2_l + d_l, math.sqrt(twoP_l)) + d_l
-    # direct bound (module docstring): the root of x^2 = A x + B per component
-    A_d, A_l = eta_FR + eta_quad + nonc2_d + d_d, nonc2_l + d_l
-    disc_direct = math.hypot(direct_root(A_d, theta_d + 0.5 * (sum_C - P_lin)) + eps_w, eta_bc)
-    lin_direct = direct_root(A_l, theta_l + 0.5 * P_lin)
-    direct = disc_direct + lin_direct < eta_disc + eta_lin
-    if direct:
-        eta_disc, eta_lin = disc_direct, lin_direct
+        # the obstacle psi, and the interpolated one psi~ (+ |||psi - psi~||| in eta_disc, .obstacle) when asked
+        variants = [(gap, ggap, None)]
+        shifted = shifted_obstacle(sv) if shift_obstacle and opts.shift_obstacle and dv.obstacle is not None else None
+        if shifted is not None:
+            variants.append((vals[0] - shifted.psi, grads[0] - shifted.grad, shifted))
+        best = None
+        nonc2_d0 = nonc2_d
+        for gap, ggap, sh in variants:
+            gap_s, ggap_s = (gap + c, ggap + grad(c)) if c is not None else (gap, ggap)
+            d_d, corr_d, support_d = admissible_correction(ig, mus, gap_s, ggap_s,
+                                                           exact_polynomial_gap=(p == 1 and exact_bc))
+            # ---------------------------------------------------------- contact terms
+            # lam~ moved towards the small gaps in every element, as in :func:`.bound.estimate`
+            # (the mean-free defect goes to eta_nonc2,disc)
+            if ar is not None:  # no s~ - s_h correction (P1 gap, exact data), no concentration
+                eta_C, nonc3_l, theta_l = ar.contact(fields, lam_t, c, split(mus)[0], load_order)
+                nonc2_d, nonc3_d, theta_d = nonc2_d0, 0.0, 0.0
+            else:
+                eta_C, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l = _contact_terms(
+                    ig, opts, p, fields, grads, lam_t, gap, ggap, gap_s, ggap_s, corr_d, c,
+                    eta_FR + eta_quad + nonc2_d0 + nonc2_l + 2.0 * (d_d + d_l), nonc2_d0, support_d)
+            sum_C = float(eta_C.sum())
+            # 2P = sum_C + nonc3 = (sum_C - P_lin + nonc3_d) + (P_lin + nonc3_l) <= 2P_disc + 2P_lin
+            twoP_d = max(sum_C - P_lin + nonc3_d, 0.0)
+            twoP_l = max(P_lin + nonc3_l, 0.0)
+            E_d = math.hypot(eta_FR + eta_quad + nonc2_d + d_d, math.sqrt(twoP_d))
+            eta_disc = math.hypot(E_d + d_d + eps_w, eta_bc)
+            eta_lin = math.hypot(nonc2_l + d_l, math.sqrt(twoP_l)) + d_l
+            # direct bound (module docstring): the root of x^2 = A x + B per component
+            A_d, A_l = eta_FR + eta_quad + nonc2_d + d_d, nonc2_l + d_l
+            disc_direct = math.hypot(direct_root(A_d, theta_d + 0.5 * (sum_C - P_lin)) + eps_w, eta_bc)
+            lin_direct = direct_root(A_l, theta_l + 0.5 * P_lin)
+            direct = disc_direct + lin_direct < eta_disc + eta_lin
+            if direct:
+                eta_disc, eta_lin = disc_direct, lin_direct
+            if sh is not None:  # |||u - u_h||| <= |||psi - psi~||| + the bound for psi~ (.obstacle)
+                eta_disc += sh.eta
+            if best is None or eta_disc + eta_lin < best[0] + best[1]:
+                best = (eta_disc, eta_lin, eta_C, sum_C, d_d, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l, direct, sh)
+    eta_disc, eta_lin, eta_C, sum_C, d_d, nonc2_d, nonc3_d, nonc3_l, theta_d, theta_l, direct, sh = best
     eta = eta_disc + eta_lin + eta_alg
-    eta_K = np.sqrt(((eta_F + eta_R) ** 2).sum(axis=0) + np.maximum(eta_C, 0.0))
+    loc = ((eta_F + eta_R) ** 2).sum(axis=0) + np.maximum(eta_C, 0.0)
+    eta_K = np.sqrt(loc if sh is None else loc + sh.loc)
     terms = {"eta_FR_disc": eta_FR, "eta_F_disc": float(np.sqrt((eta_F ** 2).sum())),
              "eta_R": float(np.sqrt((eta_R ** 2).sum())), "eta_quad": eta_quad,
              "eta_C": sum_C, "P_lin": P_lin, "nonc1_disc": d_d, "nonc1_lin": d_l,
              "nonc2_disc": nonc2_d, "nonc2_lin": nonc2_l, "nonc3_disc": nonc3_d, "nonc3_lin": nonc3_l,
              "eta_bc": eta_bc, "eps_w": eps_w, "alg_flux": alg_flux, "alg_res": alg_loc + alg_mean,
-             "theta_disc": theta_d, "theta_lin": theta_l, "direct": float(direct), "time_flux_s": t_flux}
+             "theta_disc": theta_d, "theta_lin": theta_l, "direct": float(direct), "time_flux_s": t_flux,
+             "eta_obstacle": 0.0 if sh is None else sh.eta}
     t_total = time.perf_counter() - t0
     return Components(eta_disc=eta_disc, eta_lin=eta_lin, eta_alg=eta_alg, eta=eta, eta_K=eta_K,
                       eta_K_lin=np.sqrt(loc_l), terms=terms, res_alg=res_alg,
