@@ -19,8 +19,9 @@ discrete solution for psi~, although here it is: psi~ = psi at every node).
 
 The obstacle chosen here is psi~ = b_h + (1 - chi)(psi - b_h), b_h = psi_h + w_h, with
 * w_h in P_{p+2} the lifting of the trace Pi psi - psi_h on the Dirichlet edges (Pi: NGSolve's boundary projection
-  onto P_{p+2}), discrete harmonic in the boundary strip of the Dirichlet data correction (:mod:`.dirichlet`; for
-  g = psi on an edge it is the lifting that corrects u_h there), so that b_h has the trace Pi psi;
+  onto P_{p+2}), discrete harmonic in a boundary strip, built like the Dirichlet data correction
+  (:func:`.dirichlet.dirichlet_correction`; for g = psi on the whole boundary it is the lifting that corrects u_h),
+  so that b_h has the trace Pi psi;
 * chi the P1 cutoff with vertex values 1 on the contact neighbourhood -- the vertices of the elements that touch a
   vertex of an element with a touching node (nodal gap <= 0 or multiplier > 0), so that the multiplier's patches lie
   inside -- and 0 elsewhere.
@@ -71,9 +72,9 @@ def _obstacle_gradient(psi) -> CoefficientFunction:
 
 
 def _boundary_lifting(dv, psi_h, psi):
-    """(w, eta_tr): the lifting w_h in P_{p+2} (:func:`.dirichlet.dirichlet_correction`, the Dirichlet data's
-    strip) of the trace Pi psi - psi_h on the Dirichlet edges (None below round-off), and the trace defect indicator of
-    psi - Pi psi; kept per discretization (they depend on psi and the mesh only)."""
+    """(w, eta_tr): the lifting w_h in P_{p+2} (:func:`.dirichlet.dirichlet_correction`) of the trace Pi psi - psi_h
+    on the Dirichlet edges (None below round-off), and the trace defect indicator of psi - Pi psi; kept per
+    discretization (they depend on psi and the mesh only)."""
     key = ("obstacle_lifting", id(psi))
     hit = dv.cache.get(key)
     if hit is None or hit[0] is not psi:
