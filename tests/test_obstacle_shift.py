@@ -174,3 +174,19 @@ def test_newton_loop_estimators_use_the_interpolated_obstacle():
     assert run.converged
     row = run.rows[-1]
     assert row["eta_disc_final"] <= 2.3 * row["err_energy"]
+
+
+@pytest.mark.parametrize("edge", [0.5, 0.53])
+def test_jumping_obstacle_keeps_the_plain_bound(edge):
+    """A step obstacle (not in H^1) at the contact set, along mesh lines (0.5) or across elements (0.53): the shift
+    argument needs psi in H^1 there, and |psi - psi_h| beyond what psi's own gradient allows reveals the jump, so no
+    shifted obstacle is formed (before the check: one with |||psi - psi~||| computed from the piecewise gradient,
+    which does not see the jump)."""
+    from ngsolve import IfPos
+
+    problem = ObstacleProblem(domain=CrissCrossSquare(n0=4), psi=IfPos(x - edge, -1.0, 0.05 - 0.2 * (y - 0.5) ** 2),
+                              f=-40.0, g=0.1, mu=1.0, name="step")
+    disc, sol = _solve(problem, 1, 3)
+    assert shifted_obstacle(SolutionView.of(disc, sol.x, sol.y)) is None
+    e = estimate(disc, sol.x, sol.y, EstimatorOptions(), errors=False)
+    assert e.eta_obstacle == 0.0 and math.isnan(e.eta_plain_obstacle)
