@@ -112,6 +112,9 @@ def test_cli_run_writes_the_outputs(tmp_path, capsys):
     assert main(["run", "h2_storage", "--cells", "1", "--out", str(tmp_path / "bad")]) == 2
     assert "option --cells must be an integer >= 2, got 1" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+    assert main(["run", "h2_storage", "--newton", "multigrid", "--out", str(tmp_path / "bad")]) == 2
+    assert "for the two-phase flow (the multigrid modes are for the FE discretizations), got 'multigrid'" in \
+        capsys.readouterr().err
 
 
 @pytest.mark.parametrize("cfun", ["min", "fb"])

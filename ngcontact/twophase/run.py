@@ -134,7 +134,8 @@ def check_options(cells=1000, dt_years=5000.0, t_final_years=1e6, newton="direct
         raise ValueError(f"option dt_years = {dt_years!r} gives {t_final_years / dt_years:.3g} steps to "
                          f"t_final_years = {t_final_years!r} (at most {MAX_STEPS:.0e})")
     if newton not in NEWTON_MODES:
-        raise ValueError(f"option newton must be one of {NEWTON_MODES}, got {newton!r}")
+        raise ValueError(f"option newton must be one of {NEWTON_MODES} for the two-phase flow (the multigrid modes are "
+                         f"for the FE discretizations), got {newton!r}")
 
 
 def run_h2(prm: TwoPhaseParams = TwoPhaseParams(), cells: int = 1000, dt_years: float = 5000.0,
