@@ -26,7 +26,9 @@ Newton loop's ||Phi|| / ||F||:
   step solved to a tenth that changes many row classes can throw the iterate far off (two membranes 1e3 apart
   under a checkerboard load, 24k unknowns: ||Phi|| / ||F|| 0.77 -> 111 -> ... 3.7e4, 200 steps without
   convergence); a run that keeps going astray so turns into the exact mode's solves, while the single jump of a
-  cold start costs two tighter solves, not the rest of the level.
+  cold start costs two tighter solves, not the rest of the level.  When the diagonal of the Newton matrix spans
+  more than :data:`~ngcontact.algebra.krylov.UNITS_SPREAD` (tensions far apart), the same relative test also holds
+  for the Jacobi-scaled residual ||D^-1 r|| (``pcg(..., jacobi=True)``): the soft membrane in its own units.
 
 Newton-min iterates are relaxed at the free boundary (``relax_sweeps`` > 0): after each of the first
 ``relax_steps`` steps whose iterate's active set differs from the one the step solved for by at least a tenth
