@@ -45,12 +45,12 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from ngsolve import H1, TRIG, CoefficientFunction, GridFunction, Integrate, IntegrationRule, dx, grad, x, y
+from ngsolve import H1, TRIG, CoefficientFunction, GridFunction, Integrate, IntegrationRule, dx, grad
 
 from ..discretizations.base import bit_array
 from .dirichlet import dirichlet_correction, trace_defect
 from .nonnegative import QuadratureArrays
-from .terms import element_diameters
+from .terms import cf_gradient, element_diameters
 from .view import FieldData, SolutionView
 
 __all__ = ["ShiftedObstacle", "shifted_obstacle", "SAME_OBSTACLE", "LIPSCHITZ_SLACK"]
@@ -71,10 +71,6 @@ class ShiftedObstacle:
     loc: np.ndarray
     cutoff: GridFunction
     eta_trace: float = 0.0  # the trace defect indicator of psi - Pi psi (module doc)
-
-
-def _obstacle_gradient(psi) -> CoefficientFunction:
-    return CoefficientFunction((psi.Diff(x), psi.Diff(y)))
 
 
 def _boundary_lifting(dv, psi_h, psi):
@@ -100,7 +96,7 @@ def _lipschitz_consistent(dv, psi, psi_h, support: np.ndarray) -> bool:
     from psi by the jump at points of K while grad psi, piecewise, does not see it."""
     rows = np.flatnonzero(support)
     qa = QuadratureArrays(dv.mesh, 2 * dv.order + 6, rows)
-    gp = _obstacle_gradient(psi)
+    gp = cf_gradient(psi)
     diff = np.abs(qa.values(psi - psi_h)).max(axis=1)
     slope = np.sqrt(qa.values(gp * gp)).max(axis=1)
     h = (dv.cache['h'] if 'h' in dv.cache else element_diameters(dv.mesh))[rows]
@@ -138,7 +134,7 @@ def shifted_obstacle(sv: SolutionView) -> Optional[ShiftedObstacle]:
     chi = GridFunction(V1, name="obstacle_cutoff")
     chi.vec.FV().NumPy()[:] = one.astype(float)      # P1 dofs = vertices
     support = one[ev].any(axis=1)                     # chi != 0 there
-    gpsi = _obstacle_gradient(psi)
+    gpsi = cf_gradient(psi)
     gdiff = gpsi - gbase
     g_delta = grad(chi) * diff + chi * gdiff          # grad of delta = chi (psi - psi_h - w_h)
     if not support.any():

@@ -332,6 +332,11 @@ def nonnegative_part(ig: Integrals, lam, lam_order: int, ref: float):
     return lam, 0.0, np.zeros(ig.mesh.ne)
 
 
+def cf_gradient(cf) -> CoefficientFunction:
+    """The gradient of a CoefficientFunction of the coordinates (its symbolic derivatives in x and y)."""
+    return CoefficientFunction((cf.Diff(x), cf.Diff(y)))
+
+
 def corrected_fields(dv: DiscretizationView, fields, ws):
     """u~_h = u_h + w_h per field, their gradients, and the gap of u~_h (u~1 - u~2, or u~ - psi) with its gradient."""
     grads = [grad(fd.u) + grad(w) if w is not None else grad(fd.u) for fd, w in zip(fields, ws)]
@@ -339,7 +344,7 @@ def corrected_fields(dv: DiscretizationView, fields, ws):
     if dv.obstacle is None:
         return vals, grads, vals[0] - vals[1], grads[0] - grads[1]
     psi = dv.obstacle
-    gpsi = dv.obstacle_grad if dv.obstacle_grad is not None else CoefficientFunction((psi.Diff(x), psi.Diff(y)))
+    gpsi = dv.obstacle_grad if dv.obstacle_grad is not None else cf_gradient(psi)
     return vals, grads, vals[0] - psi, grads[0] - gpsi
 
 
